@@ -1,0 +1,92 @@
+"""warpblob: BlobTree modelling of soft tissue on NVIDIA Warp.
+
+Build a model from skeletal primitives and operators, then evaluate its field
+with Warp kernels on the CPU or CUDA::
+
+    import warpblob as wb
+    model = wb.Point((0, 0, 0), 1.0) + wb.Segment((0, 0, 0), (1, 0, 0), 0.6)
+    values = wb.field(model, [[0.2, 0.0, 0.0]])
+"""
+
+import os as _os
+
+import warp as _wp
+
+if not _os.environ.get("WARPBLOB_VERBOSE"):
+    _wp.config.quiet = True
+
+from . import scenes  # noqa: E402
+from ._errors import ModelError, ResourceError, SceneError, WarpblobError
+from ._linearize import LinearModel, linearize
+from ._parallel import set_thread_count, thread_count
+from .field import color, evaluate, field, gradient
+from .tree import (
+    ISO_DISTANCE,
+    ISO_VALUE,
+    Bend,
+    Blend,
+    Box,
+    Cone,
+    Cylinder,
+    Difference,
+    Disc,
+    Inflate,
+    Intersection,
+    Node,
+    Point,
+    Polygon,
+    Revolve,
+    Ring,
+    Segment,
+    Sketch,
+    SmoothBlend,
+    Sweep,
+    Taper,
+    Transform,
+    Triangle,
+    Twist,
+    Union,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "WarpblobError",
+    "ModelError",
+    "SceneError",
+    "ResourceError",
+    "ISO_VALUE",
+    "ISO_DISTANCE",
+    "Node",
+    "Point",
+    "Segment",
+    "Disc",
+    "Ring",
+    "Cylinder",
+    "Cone",
+    "Triangle",
+    "Polygon",
+    "Box",
+    "Sketch",
+    "Inflate",
+    "Sweep",
+    "Revolve",
+    "Blend",
+    "Union",
+    "Intersection",
+    "Difference",
+    "SmoothBlend",
+    "Twist",
+    "Taper",
+    "Bend",
+    "Transform",
+    "LinearModel",
+    "linearize",
+    "field",
+    "gradient",
+    "color",
+    "evaluate",
+    "thread_count",
+    "set_thread_count",
+    "scenes",
+]

@@ -1,0 +1,146 @@
+"""Host side of the field engine: arrays in, field values, gradients and colours out."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .._errors import WarpblobError
+from .._linearize import LinearModel, linearize
+from .._parallel import launch
+from . import _kernels
+
+__all__ = ["field", "gradient", "color", "evaluate", "model_arrays"]
+
+_KERNELS: dict = {}
+
+
+def _kernel(prune: bool, derivatives: bool):
+    key = (prune, derivatives)
+    if key not in _KERNELS:
+        _KERNELS[key] = _kernels.make_kernel(prune, derivatives)
+    return _KERNELS[key]
+
+
+def model_arrays(lm: LinearModel, device) -> _kernels.ModelArrays:
+    """The device copy of ``lm`` (made once per device and cached on ``lm``)."""
+    device = wp.get_device(device)
+    key = str(device)
+    cached = lm._device_cache.get(key)
+    if cached is not None:
+        return cached
+    s = _kernels.ModelArrays()
+    s.kind = wp.array(lm.kind, dtype=wp.int32, device=device)
+    s.skip = wp.array(lm.skip, dtype=wp.int32, device=device)
+    s.parent = wp.array(lm.parent, dtype=wp.int32, device=device)
+    s.ref = wp.array(lm.ref, dtype=wp.int32, device=device)
+    s.lower = wp.array(lm.lower, dtype=wp.vec3, device=device)
+    s.upper = wp.array(lm.upper, dtype=wp.vec3, device=device)
+    s.params = wp.array(lm.params, dtype=wp.vec4, device=device)
+    s.inverse = wp.array(lm.inverse, dtype=_kernels.mat34, device=device)
+    s.radius = wp.array(lm.radius, dtype=wp.float32, device=device)
+    s.color = wp.array(lm.color, dtype=wp.vec3, device=device)
+    s.data_start = wp.array(lm.data_start, dtype=wp.int32, device=device)
+    s.data = wp.array(lm.data, dtype=wp.float32, device=device)
+    s.grid_lower = wp.array(lm.grid_lower, dtype=wp.vec3, device=device)
+    s.grid_inv_cell = wp.array(lm.grid_inv_cell, dtype=wp.vec3, device=device)
+    s.grid_dims = wp.array(lm.grid_dims, dtype=wp.vec3i, device=device)
+    s.grid_base = wp.array(lm.grid_base, dtype=wp.int32, device=device)
+    s.cell_offsets = wp.array(lm.cell_offsets, dtype=wp.int32, device=device)
+    s.cell_items = wp.array(lm.cell_items, dtype=wp.int32, device=device)
+    lm._device_cache[key] = s
+    return s
+
+
+def _as_points(points, device):
+    """(warp vec3 array, device, was_numpy) from numpy-like or Warp input."""
+    if isinstance(points, wp.array):
+        if points.dtype == wp.vec3 and points.ndim == 1:
+            return points, points.device, False
+        if points.dtype == wp.float32 and points.ndim == 2 and points.shape[1] == 3:
+            return points.view(dtype=wp.vec3).reshape((points.shape[0],)), points.device, False
+        raise WarpblobError(f"points: expected a Warp array of vec3 or (N, 3) float32, got {points.dtype} {points.shape}")
+    try:
+        arr = np.asarray(points, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise WarpblobError(f"points: expected an (N, 3) array of numbers, got {type(points).__name__}") from None
+    if arr.ndim == 1 and arr.shape == (3,):
+        arr = arr[None]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise WarpblobError(f"points: expected shape (N, 3), got {arr.shape}")
+    device = wp.get_device(device)
+    return wp.array(np.ascontiguousarray(arr), dtype=wp.vec3, device=device), device, True
+
+
+def evaluate(model, points, *, device=None, derivatives: bool = True, prune: bool = True, threads: int | None = None):
+    """Field values (N,), gradients (N, 3) and colours (N, 3) at ``points``.
+
+    Args:
+        model: a model (:class:`~warpblob.tree.Node`) or its :class:`LinearModel`.
+        points: (N, 3) numpy-like or Warp array (vec3 or (N, 3) float32).
+        device: Warp device for numpy input (default: Warp's default device);
+            Warp input is evaluated on its own device.
+        derivatives: also compute gradients and colours.
+        prune: skip subtrees whose box excludes the point (``False``: the
+            plain full traversal, for comparison; results are identical).
+        threads: CPU threads for this call (default :func:`warpblob.thread_count`).
+
+    Returns:
+        ``(values, gradients, colors)``; numpy arrays for numpy input, Warp
+        arrays on the input's device for Warp input; gradients and colours
+        are ``None`` when ``derivatives`` is False.
+    """
+    lm = linearize(model)
+    pts, dev, was_numpy = _as_points(points, device)
+    n = pts.shape[0]
+    values = wp.empty(n, dtype=wp.float32, device=dev)
+    if derivatives:
+        grads = wp.empty(n, dtype=wp.vec3, device=dev)
+        cols = wp.empty(n, dtype=wp.vec3, device=dev)
+    else:
+        grads = cols = wp.empty(0, dtype=wp.vec3, device=dev)
+    launch(_kernel(prune, derivatives), n, [model_arrays(lm, dev), pts], [values, grads, cols], dev, threads)
+    if not derivatives:
+        grads = cols = None
+    if was_numpy:
+        # host sync: copy results back for numpy callers
+        values = values.numpy()
+        if derivatives:
+            grads, cols = grads.numpy().reshape(n, 3), cols.numpy().reshape(n, 3)
+    return values, grads, cols
+
+
+def field(model, points, *, device=None, prune: bool = True, threads: int | None = None):
+    """Field values ``F(p)`` at (N, 3) ``points`` → (N,) float32.
+
+    Example:
+        >>> import warpblob as wb
+        >>> f = wb.field(wb.Point((0, 0, 0), 1.0), [[0.0, 0.0, 0.0], [0.4541, 0.0, 0.0], [2.0, 0.0, 0.0]])
+        >>> [round(float(v), 3) for v in f]
+        [1.0, 0.5, 0.0]
+    """
+    return evaluate(model, points, device=device, derivatives=False, prune=prune, threads=threads)[0]
+
+
+def gradient(model, points, *, device=None, prune: bool = True, threads: int | None = None):
+    """Analytic gradients ``grad F(p)`` at (N, 3) ``points`` → (N, 3) float32 (1 / model unit).
+
+    Example:
+        >>> import warpblob as wb
+        >>> g = wb.gradient(wb.Point((0, 0, 0), 1.0), [[0.5, 0.0, 0.0]])
+        >>> bool(g[0, 0] < 0.0)
+        True
+    """
+    return evaluate(model, points, device=device, derivatives=True, prune=prune, threads=threads)[1]
+
+
+def color(model, points, *, device=None, prune: bool = True, threads: int | None = None):
+    """Colours (N, 3) RGB in [0, 1] at (N, 3) ``points`` (black where ``F = 0``).
+
+    Example:
+        >>> import warpblob as wb
+        >>> c = wb.color(wb.Point((0, 0, 0), 1.0, color=(1, 0, 0)), [[0.1, 0.0, 0.0]])
+        >>> c[0].tolist()
+        [1.0, 0.0, 0.0]
+    """
+    return evaluate(model, points, device=device, derivatives=True, prune=prune, threads=threads)[2]

@@ -1,0 +1,599 @@
+"""Warp functions and kernels that evaluate a linearized BlobTree.
+
+The traversal is stackless in the sense of the thesis (SPEC 1.5): no
+recursion, and per-thread storage bounded by constants that do not grow with
+the tree (:data:`~warpblob._linearize.SLOTS` registers for open operators,
+:data:`~warpblob._linearize.WARP_NESTING` saved points for open warps). It
+walks the pre-order node array with ``skip``/``parent`` links; a node whose
+box does not hold the point is skipped with its whole subtree (exactly 0),
+and wide sparse operators visit only the operands listed in the point's grid
+cell. Value, analytic gradient and colour are computed together.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .._linearize import SLOTS, WARP_NESTING
+from ..tree import _kinds
+
+mat34 = wp.types.matrix(shape=(3, 4), dtype=wp.float32)
+vec_slots = wp.types.vector(length=SLOTS, dtype=wp.float32)
+ivec_slots = wp.types.vector(length=SLOTS, dtype=wp.int32)
+mat_slots3 = wp.types.matrix(shape=(SLOTS, 3), dtype=wp.float32)
+mat_warps3 = wp.types.matrix(shape=(WARP_NESTING, 3), dtype=wp.float32)
+vec7 = wp.types.vector(length=7, dtype=wp.float32)
+
+K_POINT = wp.constant(_kinds.POINT)
+K_SEGMENT = wp.constant(_kinds.SEGMENT)
+K_DISC = wp.constant(_kinds.DISC)
+K_RING = wp.constant(_kinds.RING)
+K_CONE = wp.constant(_kinds.CONE)
+K_POLYGON = wp.constant(_kinds.POLYGON)
+K_BOX = wp.constant(_kinds.BOX)
+K_INFLATE = wp.constant(_kinds.INFLATE)
+K_REVOLVE = wp.constant(_kinds.REVOLVE)
+K_SWEEP = wp.constant(_kinds.SWEEP)
+K_PRIM_END = wp.constant(_kinds.PRIMITIVE_KIND_END)
+K_BLEND = wp.constant(_kinds.BLEND)
+K_UNION = wp.constant(_kinds.UNION)
+K_INTERSECTION = wp.constant(_kinds.INTERSECTION)
+K_DIFFERENCE = wp.constant(_kinds.DIFFERENCE)
+K_SMOOTH = wp.constant(_kinds.SMOOTH_BLEND)
+K_TWIST = wp.constant(_kinds.TWIST)
+K_TAPER = wp.constant(_kinds.TAPER)
+K_BEND = wp.constant(_kinds.BEND)
+
+
+@wp.struct
+class ModelArrays:
+    """Device view of a :class:`~warpblob._linearize.LinearModel`."""
+
+    kind: wp.array(dtype=wp.int32)
+    skip: wp.array(dtype=wp.int32)
+    parent: wp.array(dtype=wp.int32)
+    ref: wp.array(dtype=wp.int32)
+    lower: wp.array(dtype=wp.vec3)
+    upper: wp.array(dtype=wp.vec3)
+    params: wp.array(dtype=wp.vec4)
+    inverse: wp.array(dtype=mat34)
+    radius: wp.array(dtype=wp.float32)
+    color: wp.array(dtype=wp.vec3)
+    data_start: wp.array(dtype=wp.int32)
+    data: wp.array(dtype=wp.float32)
+    grid_lower: wp.array(dtype=wp.vec3)
+    grid_inv_cell: wp.array(dtype=wp.vec3)
+    grid_dims: wp.array(dtype=wp.vec3i)
+    grid_base: wp.array(dtype=wp.int32)
+    cell_offsets: wp.array(dtype=wp.int32)
+    cell_items: wp.array(dtype=wp.int32)
+
+
+# --------------------------------------------------------------------------
+# small helpers
+
+
+@wp.func
+def safe_div3(v: wp.vec3, d: float):
+    if d > 0.0:
+        return v / d
+    return wp.vec3(0.0)
+
+
+@wp.func
+def dist_result(v: wp.vec3):
+    """(d, grad d) from the vector between the point and its closest skeleton point."""
+    d = wp.length(v)
+    g = safe_div3(v, d)
+    return wp.vec4(d, g[0], g[1], g[2])
+
+
+@wp.func
+def closest_on_segment2(p: wp.vec2, a: wp.vec2, b: wp.vec2):
+    ab = b - a
+    den = wp.dot(ab, ab)
+    t = float(0.0)
+    if den > 0.0:
+        t = wp.clamp(wp.dot(p - a, ab) / den, 0.0, 1.0)
+    return a + t * ab
+
+
+@wp.func
+def apply_inverse(m: mat34, p: wp.vec3):
+    return wp.vec3(
+        m[0, 0] * p[0] + m[0, 1] * p[1] + m[0, 2] * p[2] + m[0, 3],
+        m[1, 0] * p[0] + m[1, 1] * p[1] + m[1, 2] * p[2] + m[1, 3],
+        m[2, 0] * p[0] + m[2, 1] * p[1] + m[2, 2] * p[2] + m[2, 3],
+    )
+
+
+@wp.func
+def pull_gradient(m: mat34, g: wp.vec3):
+    """Gradient in the parent frame from a local gradient: A^T g."""
+    return wp.vec3(
+        m[0, 0] * g[0] + m[1, 0] * g[1] + m[2, 0] * g[2],
+        m[0, 1] * g[0] + m[1, 1] * g[1] + m[2, 1] * g[2],
+        m[0, 2] * g[0] + m[1, 2] * g[1] + m[2, 2] * g[2],
+    )
+
+
+@wp.func
+def inside_box(p: wp.vec3, lo: wp.vec3, hi: wp.vec3):
+    return p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]
+
+
+# --------------------------------------------------------------------------
+# distances to canonical skeletons: (d, dd/dx, dd/dy, dd/dz) in the local frame
+
+
+@wp.func
+def dist_cone(x: wp.vec3, length: float, ra: float, rb: float):
+    rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
+    z = x[2]
+    if z >= 0.0 and z <= length and rho <= ra + (rb - ra) * z / length:
+        return wp.vec4(0.0)
+    p = wp.vec2(rho, z)
+    c = closest_on_segment2(p, wp.vec2(0.0, 0.0), wp.vec2(ra, 0.0))
+    best = wp.length_sq(p - c)
+    c2 = closest_on_segment2(p, wp.vec2(ra, 0.0), wp.vec2(rb, length))
+    d2 = wp.length_sq(p - c2)
+    if d2 < best:
+        best = d2
+        c = c2
+    c3 = closest_on_segment2(p, wp.vec2(rb, length), wp.vec2(0.0, length))
+    d3 = wp.length_sq(p - c3)
+    if d3 < best:
+        c = c3
+    v = p - c
+    radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
+    return dist_result(wp.vec3(v[0] * radial[0], v[0] * radial[1], v[1]))
+
+
+@wp.func
+def dist_polygon(x: wp.vec3, data: wp.array(dtype=wp.float32), start: int, n: int):
+    p = wp.vec2(x[0], x[1])
+    inside = bool(False)
+    best = float(1.0e30)
+    close = p
+    j = n - 1
+    for i in range(n):
+        a = wp.vec2(data[start + 2 * i], data[start + 2 * i + 1])
+        b = wp.vec2(data[start + 2 * j], data[start + 2 * j + 1])
+        if (a[1] > p[1]) != (b[1] > p[1]):
+            xc = a[0] + (p[1] - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+            if p[0] < xc:
+                inside = not inside
+        c = closest_on_segment2(p, a, b)
+        d2 = wp.length_sq(p - c)
+        if d2 < best:
+            best = d2
+            close = c
+        j = i
+    v = wp.vec2(0.0)
+    if not inside:
+        v = p - close
+    return dist_result(wp.vec3(v[0], v[1], x[2]))
+
+
+@wp.func
+def dist_box(x: wp.vec3, h: wp.vec3):
+    o = wp.vec3(
+        wp.max(wp.abs(x[0]) - h[0], 0.0) * wp.sign(x[0]),
+        wp.max(wp.abs(x[1]) - h[1], 0.0) * wp.sign(x[1]),
+        wp.max(wp.abs(x[2]) - h[2], 0.0) * wp.sign(x[2]),
+    )
+    return dist_result(o)
+
+
+@wp.func
+def sketch_outside(u: wp.vec2, data: wp.array(dtype=wp.float32), start: int):
+    """(o, do/du) with o = max(-s(u), e(u), 0): s the thin-plate spline, e the
+    distance to the contour's bounding rectangle."""
+    m = int(data[start])
+    lo = wp.vec2(data[start + 1], data[start + 2])
+    hi = wp.vec2(data[start + 3], data[start + 4])
+    s = data[start + 6] * u[0] + data[start + 7] * u[1] + data[start + 8]
+    gs = wp.vec2(data[start + 6], data[start + 7])
+    base = start + 9
+    for i in range(m):
+        c = wp.vec2(data[base + 3 * i], data[base + 3 * i + 1])
+        w = data[base + 3 * i + 2]
+        v = u - c
+        r2 = wp.dot(v, v)
+        if r2 > 0.0:
+            lnr = 0.5 * wp.log(r2)
+            s += w * r2 * lnr
+            gs += (w * (2.0 * lnr + 1.0)) * v
+    ev = wp.vec2(wp.max(lo[0] - u[0], 0.0) - wp.max(u[0] - hi[0], 0.0), wp.max(lo[1] - u[1], 0.0) - wp.max(u[1] - hi[1], 0.0))
+    e = wp.length(ev)
+    o = float(0.0)
+    go = wp.vec2(0.0)
+    if -s > o:
+        o = -s
+        go = -gs
+    if e > o:
+        o = e
+        go = -ev / e
+    return wp.vec4(o, go[0], go[1], s), gs
+
+
+@wp.func
+def dist_inflate(x: wp.vec3, thickness: float, data: wp.array(dtype=wp.float32), start: int):
+    res, gs = sketch_outside(wp.vec2(x[0], x[1]), data, start)
+    depth = data[start + 5]
+    t = res[3] / depth
+    h = float(0.0)
+    gh = wp.vec2(0.0)
+    if t > 0.0:
+        tc = wp.min(t, 1.0)
+        h = thickness * (1.0 - (1.0 - tc) * (1.0 - tc))
+        if t < 1.0:
+            gh = (thickness * 2.0 * (1.0 - t) / depth) * gs
+    az = wp.abs(x[2])
+    hz = wp.max(az - h, 0.0)
+    d = wp.sqrt(res[0] * res[0] + hz * hz)
+    if d <= 0.0:
+        return wp.vec4(0.0)
+    gx = res[0] * res[1]
+    gy = res[0] * res[2]
+    gz = float(0.0)
+    if hz > 0.0:
+        gx -= hz * gh[0]
+        gy -= hz * gh[1]
+        gz = hz * wp.sign(x[2])
+    return wp.vec4(d, gx / d, gy / d, gz / d)
+
+
+@wp.func
+def dist_revolve(x: wp.vec3, data: wp.array(dtype=wp.float32), start: int):
+    rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
+    res, gs = sketch_outside(wp.vec2(rho, x[2]), data, start)
+    radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
+    return wp.vec4(res[0], res[1] * radial[0], res[1] * radial[1], res[2])
+
+
+@wp.func
+def dist_sweep(x: wp.vec3, data: wp.array(dtype=wp.float32), start: int):
+    m = int(data[start])
+    seg = start + 9 + 3 * m
+    count = int(data[seg])
+    best = wp.vec4(1.0e30, 0.0, 0.0, 0.0)
+    for k in range(count):
+        b = seg + 1 + 13 * k
+        inv = mat34(
+            data[b + 0], data[b + 1], data[b + 2], data[b + 3],
+            data[b + 4], data[b + 5], data[b + 6], data[b + 7],
+            data[b + 8], data[b + 9], data[b + 10], data[b + 11],
+        )  # fmt: skip
+        length = data[b + 12]
+        y = apply_inverse(inv, x)
+        res, gs = sketch_outside(wp.vec2(y[0], y[1]), data, start)
+        a = wp.max(wp.max(-y[2], y[2] - length), 0.0)
+        sa = float(0.0)
+        if y[2] > length:
+            sa = 1.0
+        elif y[2] < 0.0:
+            sa = -1.0
+        d = wp.sqrt(res[0] * res[0] + a * a)
+        if d < best[0]:
+            g = wp.vec3(0.0)
+            if d > 0.0:
+                g = pull_gradient(inv, wp.vec3(res[0] * res[1], res[0] * res[2], a * sa) / d)
+            best = wp.vec4(d, g[0], g[1], g[2])
+    return best
+
+
+@wp.func
+def primitive_distance(kind: int, x: wp.vec3, prm: wp.vec4, data: wp.array(dtype=wp.float32), start: int):
+    if kind == K_POINT:
+        return dist_result(x)
+    if kind == K_SEGMENT:
+        return dist_result(x - wp.vec3(wp.clamp(x[0], 0.0, prm[0]), 0.0, 0.0))
+    if kind == K_DISC or kind == K_RING:
+        rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
+        dr = rho - prm[0]
+        if kind == K_DISC:
+            dr = wp.max(dr, 0.0)
+        radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
+        return dist_result(wp.vec3(dr * radial[0], dr * radial[1], x[2]))
+    if kind == K_CONE:
+        return dist_cone(x, prm[0], prm[1], prm[2])
+    if kind == K_POLYGON:
+        return dist_polygon(x, data, start, int(prm[0]))
+    if kind == K_BOX:
+        return dist_box(x, wp.vec3(prm[0], prm[1], prm[2]))
+    if kind == K_INFLATE:
+        return dist_inflate(x, prm[0], data, start)
+    if kind == K_REVOLVE:
+        return dist_revolve(x, data, start)
+    return dist_sweep(x, data, start)
+
+
+@wp.func
+def falloff(x: float):
+    """Wyvill falloff g(x) and its derivative."""
+    if x <= 0.0:
+        return wp.vec2(1.0, 0.0)
+    if x >= 1.0:
+        return wp.vec2(0.0, 0.0)
+    t = 1.0 - x * x
+    return wp.vec2(t * t * t, -6.0 * x * t * t)
+
+
+@wp.func
+def evaluate_primitive(m: ModelArrays, node: int, q: wp.vec3):
+    """(F, dF/dq, colour) of primitive ``node`` at ``q`` (parent frame)."""
+    r = m.ref[node]
+    inv = m.inverse[r]
+    x = apply_inverse(inv, q)
+    dg = primitive_distance(m.kind[node], x, m.params[node], m.data, m.data_start[r])
+    rad = m.radius[r]
+    fg = falloff(dg[0] / rad)
+    out = vec7()
+    if fg[0] > 0.0:
+        g = pull_gradient(inv, (fg[1] / rad) * wp.vec3(dg[1], dg[2], dg[3]))
+        c = m.color[r]
+        out = vec7(fg[0], g[0], g[1], g[2], c[0], c[1], c[2])
+    return out
+
+
+# --------------------------------------------------------------------------
+# warps: point forward into the child's frame, gradient back
+
+
+@wp.func
+def rotate_about(v: wp.vec3, a: wp.vec3, angle: float):
+    c = wp.cos(angle)
+    s = wp.sin(angle)
+    return v * c + wp.cross(a, v) * s + a * (wp.dot(a, v) * (1.0 - c))
+
+
+@wp.func
+def bend_up(m: ModelArrays, node: int):
+    st = m.data_start[m.ref[node]]
+    return wp.vec3(m.data[st], m.data[st + 1], m.data[st + 2])
+
+
+@wp.func
+def warp_forward(m: ModelArrays, node: int, p: wp.vec3):
+    x = apply_inverse(m.inverse[m.ref[node]], p)
+    prm = m.params[node]
+    a = wp.vec3(prm[0], prm[1], prm[2])
+    kind = m.kind[node]
+    if kind == K_TWIST:
+        return rotate_about(x, a, -prm[3] * wp.dot(a, x))
+    if kind == K_TAPER:
+        t = wp.dot(a, x)
+        s = 1.0 / wp.max(1.0 + prm[3] * t, 0.05)
+        return s * x + (t * (1.0 - s)) * a
+    u = bend_up(m, node)
+    w = wp.cross(a, u)
+    rho = prm[3]
+    bx = wp.dot(x, a)
+    by = rho - wp.dot(x, u)
+    r = wp.max(wp.sqrt(bx * bx + by * by), 1.0e-12)
+    return (rho * wp.atan2(bx, by)) * a + (rho - r) * u + wp.dot(x, w) * w
+
+
+@wp.func
+def warp_gradient(m: ModelArrays, node: int, p: wp.vec3, g: wp.vec3):
+    """Gradient in the warp's parent frame from the child's gradient ``g``: (J W A)^T g."""
+    inv = m.inverse[m.ref[node]]
+    x = apply_inverse(inv, p)
+    prm = m.params[node]
+    a = wp.vec3(prm[0], prm[1], prm[2])
+    kind = m.kind[node]
+    out = wp.vec3(0.0)
+    if kind == K_TWIST:
+        angle = -prm[3] * wp.dot(a, x)
+        q = rotate_about(x, a, angle)
+        out = rotate_about(g, a, -angle) - (prm[3] * wp.dot(wp.cross(a, q), g)) * a
+    elif kind == K_TAPER:
+        t = wp.dot(a, x)
+        scale = 1.0 + prm[3] * t
+        if scale >= 0.05:
+            s = 1.0 / scale
+            perp = x - t * a
+            out = s * g + (-prm[3] * s * s * wp.dot(perp, g) + (1.0 - s) * wp.dot(a, g)) * a
+        else:
+            out = 0.05 * g
+    else:
+        u = bend_up(m, node)
+        w = wp.cross(a, u)
+        rho = prm[3]
+        bx = wp.dot(x, a)
+        by = rho - wp.dot(x, u)
+        r2 = wp.max(bx * bx + by * by, 1.0e-24)
+        r = wp.sqrt(r2)
+        gd = wp.dot(g, a)
+        gu = wp.dot(g, u)
+        out = (gd * rho / r2) * (by * a + bx * u) + (gu / r) * (-bx * a + by * u) + wp.dot(g, w) * w
+    return pull_gradient(inv, out)
+
+
+# --------------------------------------------------------------------------
+# operators on (value, gradient, colour) accumulators
+
+
+@wp.func
+def combine_kind(kind: int, k: float, reverse: float, acc: vec7, r: vec7, first: bool):
+    """Fold result ``r`` into accumulator ``acc`` (``first``: ``r`` starts it)."""
+    if kind == K_BLEND or kind == K_SMOOTH:
+        w = r[0]
+        gw = float(1.0)
+        if kind == K_SMOOTH:
+            w = wp.pow(r[0], k)
+            gw = k * wp.pow(r[0], k - 1.0)
+        lifted = vec7(w, gw * r[1], gw * r[2], gw * r[3], w * r[4], w * r[5], w * r[6])
+        if first:
+            return lifted
+        return acc + lifted
+    if first:
+        return r
+    if kind == K_UNION:
+        if r[0] > acc[0]:
+            return r
+        return acc
+    if kind == K_INTERSECTION:
+        if r[0] < acc[0]:
+            return r
+        return acc
+    # difference: min(F_a, 1 - min(F_b, 1)); operands were evaluated as (a, b) or (b, a)
+    a = acc
+    b = r
+    if reverse > 0.5:
+        a = r
+        b = acc
+    t = 1.0 - wp.min(b[0], 1.0)
+    if a[0] <= t:
+        return a
+    out = vec7(t, 0.0, 0.0, 0.0, b[4], b[5], b[6])
+    if b[0] < 1.0:
+        out = vec7(t, -b[1], -b[2], -b[3], b[4], b[5], b[6])
+    return out
+
+
+@wp.func
+def finalize_kind(kind: int, k: float, acc: vec7):
+    out = acc
+    if kind == K_BLEND or kind == K_SMOOTH:
+        if acc[0] > 0.0:
+            inv = 1.0 / acc[0]
+            out = vec7(acc[0], acc[1], acc[2], acc[3], acc[4] * inv, acc[5] * inv, acc[6] * inv)
+            if kind == K_SMOOTH:
+                v = wp.pow(acc[0], 1.0 / k)
+                s = v * inv
+                out = vec7(v, s * acc[1], s * acc[2], s * acc[3], out[4], out[5], out[6])
+    if out[0] <= 0.0:
+        out = vec7()
+    return out
+
+
+def make_evaluate(prune: bool):
+    """The traversal as a Warp function, with or without pruning."""
+
+    @wp.func
+    def get_slot(sv: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
+        g = sg[sp]
+        c = sc[sp]
+        return vec7(sv[sp], g[0], g[1], g[2], c[0], c[1], c[2])
+
+    @wp.func
+    def evaluate(m: ModelArrays, p: wp.vec3):
+        sv = vec_slots()
+        sg = mat_slots3()
+        sc = mat_slots3()
+        cursor = ivec_slots()
+        stop = ivec_slots()
+        saved = mat_warps3()
+        sp = int(-1)
+        wsp = int(-1)
+        q = p
+        i = int(0)
+        r = vec7()
+        descending = bool(True)
+        while True:
+            if descending:
+                kind = m.kind[i]
+                if wp.static(prune) and not inside_box(q, m.lower[i], m.upper[i]):
+                    r = vec7()
+                    descending = False
+                elif kind < K_PRIM_END:
+                    r = evaluate_primitive(m, i, q)
+                    descending = False
+                elif kind >= K_TWIST:
+                    wsp += 1
+                    saved[wsp] = q
+                    q = warp_forward(m, i, q)
+                    i = i + 1
+                elif wp.static(prune) and m.ref[i] >= 0:
+                    # wide sparse operator: visit the operands listed in q's grid cell
+                    gi = m.ref[i]
+                    cell = wp.cw_mul(q - m.grid_lower[gi], m.grid_inv_cell[gi])
+                    dims = m.grid_dims[gi]
+                    cx = wp.clamp(int(wp.floor(cell[0])), 0, dims[0] - 1)
+                    cy = wp.clamp(int(wp.floor(cell[1])), 0, dims[1] - 1)
+                    cz = wp.clamp(int(wp.floor(cell[2])), 0, dims[2] - 1)
+                    cidx = m.grid_base[gi] + (cz * dims[1] + cy) * dims[0] + cx
+                    cfirst = m.cell_offsets[cidx]
+                    clast = m.cell_offsets[cidx + 1]
+                    if cfirst < clast:
+                        sp += 1
+                        sv[sp] = 0.0
+                        sg[sp] = wp.vec3(0.0)
+                        sc[sp] = wp.vec3(0.0)
+                        cursor[sp] = cfirst + 1
+                        stop[sp] = clast
+                        i = m.cell_items[cfirst]
+                    else:
+                        r = vec7()
+                        descending = False
+                else:
+                    i = i + 1
+            else:
+                if i == 0:
+                    break
+                par = m.parent[i]
+                pk = m.kind[par]
+                if pk >= K_TWIST:
+                    g = warp_gradient(m, par, saved[wsp], wp.vec3(r[1], r[2], r[3]))
+                    r = vec7(r[0], g[0], g[1], g[2], r[4], r[5], r[6])
+                    q = saved[wsp]
+                    wsp -= 1
+                    i = par
+                else:
+                    prm = m.params[par]
+                    wide = bool(False)
+                    if wp.static(prune):
+                        wide = m.ref[par] >= 0
+                    first = i == par + 1 and not wide
+                    if first:
+                        sp += 1
+                    acc = combine_kind(pk, prm[0], prm[0], get_slot(sv, sg, sc, sp), r, first)
+                    sv[sp] = acc[0]
+                    sg[sp] = wp.vec3(acc[1], acc[2], acc[3])
+                    sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
+                    nxt = int(-1)
+                    if wide:
+                        if cursor[sp] < stop[sp]:
+                            nxt = m.cell_items[cursor[sp]]
+                            cursor[sp] += 1
+                    else:
+                        nxt = m.skip[i]
+                        if nxt >= m.skip[par]:
+                            nxt = -1
+                        if wp.static(prune) and pk == K_INTERSECTION and acc[0] <= 0.0:
+                            nxt = -1
+                    if nxt >= 0:
+                        i = nxt
+                        descending = True
+                    else:
+                        r = finalize_kind(pk, prm[0], acc)
+                        sp -= 1
+                        i = par
+        return r
+
+    return evaluate
+
+
+def make_kernel(prune: bool, derivatives: bool):
+    """Kernel evaluating points[offset : offset + dim] (range-split on the CPU)."""
+    evaluate = make_evaluate(prune)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def evaluate_points_kernel(
+        m: ModelArrays,
+        points: wp.array(dtype=wp.vec3),
+        offset: int,
+        values: wp.array(dtype=wp.float32),
+        gradients: wp.array(dtype=wp.vec3),
+        colors: wp.array(dtype=wp.vec3),
+    ):
+        tid = wp.tid() + offset
+        r = evaluate(m, points[tid])
+        values[tid] = r[0]
+        if wp.static(derivatives):
+            gradients[tid] = wp.vec3(r[1], r[2], r[3])
+            colors[tid] = wp.vec3(r[4], r[5], r[6])
+
+    return evaluate_points_kernel
