@@ -6,7 +6,7 @@ import pytest
 import warp as wp
 
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
-wp.config.quiet = True
+wp.config.log_level = 30
 wp.init()
 
 _DEVICES = ["cpu"] + (["cuda:0"] if wp.get_cuda_device_count() > 0 else [])

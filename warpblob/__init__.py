@@ -13,7 +13,8 @@ import os as _os
 import warp as _wp
 
 if not _os.environ.get("WARPBLOB_VERBOSE"):
-    _wp.config.quiet = True
+    # keep Warp's start-up and module-load messages out of library and CLI output
+    _wp.config.log_level = 30
 
 from . import scenes  # noqa: E402
 from ._errors import ModelError, ResourceError, SceneError, WarpblobError

@@ -6,16 +6,20 @@ Following the thesis' section on linearized BlobTrees (SPEC 1.5) the tree is
    into warps, whose output starts a new frame), so that operators carry no
    matrix; every primitive and warp keeps the inverse 3x4 matrix from its
    parent frame to its local frame, and every node its box in its parent frame;
-2. **ordered for a bounded register file**: the operands of each operator
+2. **merged**: nested blends, unions and intersections of the same kind
+   become one operator (``Union(a, Union(b, c)) = Union(a, b, c)``), so a
+   chain of unions (a tower of floors) is one wide union that the grid below
+   indexes; max and min are exactly associative, a sum up to float rounding;
+3. **ordered for a bounded register file**: the operands of each operator
    are sorted so that the operand needing the most registers is evaluated
    first (Sethi & Ullman 1970, generalized to n-ary nodes). With the first
    operand's result becoming the operator's accumulator, a chain of any depth
    needs one register and a balanced tree of n leaves log2(n); the kernels
    use a fixed file of :data:`SLOTS` registers per thread and no recursion;
-3. **flattened** in pre-order into a structure of arrays with integer links:
+4. **flattened** in pre-order into a structure of arrays with integer links:
    ``skip`` (one past the node's subtree, the next sibling), ``parent`` and
    ``ref`` (row in the primitive/warp table, or grid of a wide operator);
-4. **indexed**: a blend, union or smooth blend with many operands
+5. **indexed**: a blend, union or smooth blend with many operands
    (:data:`WIDE` or more) gets a uniform grid over its box whose cells list,
    in ascending order, the operands whose boxes meet the cell, so that a point
    visits O(1) operands instead of all of them (medusa has 2,920 primitives
@@ -43,8 +47,10 @@ SLOTS = 16
 WARP_NESTING = 8
 #: operand count from which a sparse operator gets a grid
 WIDE = 8
-#: target number of operands per grid cell (on average over occupied cells)
 _GRID_MAX_CELLS = 1 << 18
+_GRID_MAX_ITEMS = 1 << 22
+#: operators whose nested copies merge into one (max and min exactly; the sum up to rounding)
+_ASSOCIATIVE = (_kinds.BLEND, _kinds.UNION, _kinds.INTERSECTION)
 
 
 class _ENode:
@@ -116,6 +122,12 @@ def _finish(root: _ENode):
         if n.code < _kinds.PRIMITIVE_KIND_END or n.code in _kinds.WARP_KINDS:
             n.need = n.children[0].need if n.children else 0
             continue
+        if n.code in _ASSOCIATIVE:
+            # Union(a, Union(b, c)) == Union(a, b, c): chains become one wide operator
+            flat = []
+            for c in n.children:
+                flat.extend(c.children if c.code == n.code else [c])
+            n.children = flat
         boxes = [c.box for c in n.children]
         if n.code == _kinds.INTERSECTION:
             n.box = box_intersection(boxes)
@@ -146,6 +158,15 @@ def _warp_nesting(root: _ENode) -> int:
     return best
 
 
+def _evaluation_depth(root: _ENode) -> int:
+    best, stack = 0, [(root, 1)]
+    while stack:
+        n, d = stack.pop()
+        best = max(best, d)
+        stack.extend((c, d + 1) for c in n.children)
+    return best
+
+
 @dataclass(eq=False)
 class LinearModel:
     """The flat, kernel-ready form of a model (see :func:`linearize`).
@@ -164,6 +185,12 @@ class LinearModel:
     ``grid_dims`` (int32 (g, 3)), ``grid_base`` (int32, offset of the grid's
     cells in ``cell_offsets``), ``cell_offsets`` (int32, CSR), ``cell_items``
     (int32 node indices, ascending within a cell).
+
+    Counts describe the authored tree: ``primitive_count``, ``operator_count``
+    (operators, warps and transform nodes), ``depth`` (nodes on the longest
+    root-to-leaf path; transform nodes add no level). ``evaluation_depth`` is
+    the depth after merging, ``registers`` the register slots a thread needs,
+    ``warp_nesting`` the deepest nesting of warps.
     """
 
     kind: np.ndarray
@@ -187,6 +214,7 @@ class LinearModel:
     primitive_count: int
     operator_count: int
     depth: int
+    evaluation_depth: int
     registers: int
     warp_nesting: int
     _device_cache: dict = field(default_factory=dict, repr=False)
@@ -222,14 +250,22 @@ class LinearModel:
         }
 
 
+def _grid_items(child_boxes, lo, inv_cell, dims) -> int:
+    c0 = np.clip(np.floor((child_boxes[:, 0] - lo) * inv_cell), 0, dims - 1)
+    c1 = np.clip(np.floor((child_boxes[:, 1] - lo) * inv_cell), 0, dims - 1)
+    return int(np.prod(c1 - c0 + 1, axis=1).sum())
+
+
 def _build_grid(op_box, child_boxes, child_index):
     """Uniform grid over ``op_box`` listing, per cell, the children whose boxes meet it."""
     lo, hi = op_box
     extent = np.maximum(hi - lo, 1e-9)
     sizes = child_boxes[:, 1] - child_boxes[:, 0]
-    cell = float(np.median(np.max(sizes, axis=1)))
+    # cells of half the typical operand size: a point then sees few more
+    # operands than those whose boxes really hold it, at ~3.4x the items
+    cell = 0.5 * float(np.median(np.max(sizes, axis=1)))
     dims = np.clip(np.ceil(extent / max(cell, 1e-9)), 1, 256).astype(np.int64)
-    while np.prod(dims) > _GRID_MAX_CELLS:
+    while np.prod(dims) > _GRID_MAX_CELLS or _grid_items(child_boxes, lo, dims / extent, dims) > _GRID_MAX_ITEMS:
         dims = np.maximum(dims // 2, 1)
     inv_cell = dims / extent
     c0 = np.clip(np.floor((child_boxes[:, 0] - lo) * inv_cell), 0, dims - 1).astype(np.int64)
@@ -354,6 +390,7 @@ def linearize(model: Node) -> LinearModel:
         primitive_count=model.primitive_count(),
         operator_count=model.operator_count(),
         depth=model.depth(),
+        evaluation_depth=_evaluation_depth(root),
         registers=int(root.need),
         warp_nesting=nesting,
     )

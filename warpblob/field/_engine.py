@@ -10,7 +10,7 @@ from .._linearize import LinearModel, linearize
 from .._parallel import launch
 from . import _kernels
 
-__all__ = ["field", "gradient", "color", "evaluate", "model_arrays"]
+__all__ = ["field", "gradient", "color", "evaluate", "model_arrays", "resolve_device"]
 
 _KERNELS: dict = {}
 
@@ -68,8 +68,19 @@ def _as_points(points, device):
         arr = arr[None]
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise WarpblobError(f"points: expected shape (N, 3), got {arr.shape}")
-    device = wp.get_device(device)
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise WarpblobError(f"points: must be finite, got {arr[bad[0]].tolist()} at row {bad[0]}")
+    device = resolve_device(device)
     return wp.array(np.ascontiguousarray(arr), dtype=wp.vec3, device=device), device, True
+
+
+def resolve_device(device):
+    """The Warp device for ``device`` (name, Device or None), or WarpblobError."""
+    try:
+        return wp.get_device(device)
+    except (ValueError, RuntimeError, TypeError) as exc:
+        raise WarpblobError(f"device {device!r} is not available: {exc}") from None
 
 
 def evaluate(model, points, *, device=None, derivatives: bool = True, prune: bool = True, threads: int | None = None):

@@ -294,7 +294,10 @@ def primitive_distance(kind: int, x: wp.vec3, prm: wp.vec4, data: wp.array(dtype
         dr = rho - prm[0]
         if kind == K_DISC:
             dr = wp.max(dr, 0.0)
-        radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
+        # on the axis every radial direction is equally near: take +x
+        radial = wp.vec3(1.0, 0.0, 0.0)
+        if rho > 0.0:
+            radial = wp.vec3(x[0], x[1], 0.0) / rho
         return dist_result(wp.vec3(dr * radial[0], dr * radial[1], x[2]))
     if kind == K_CONE:
         return dist_cone(x, prm[0], prm[1], prm[2])
@@ -447,10 +450,12 @@ def combine_kind(kind: int, k: float, reverse: float, acc: vec7, r: vec7, first:
     t = 1.0 - wp.min(b[0], 1.0)
     if a[0] <= t:
         return a
-    out = vec7(t, 0.0, 0.0, 0.0, b[4], b[5], b[6])
-    if b[0] < 1.0:
-        out = vec7(t, -b[1], -b[2], -b[3], b[4], b[5], b[6])
-    return out
+    if b[0] <= 0.0:
+        # F_a > 1 clamped by the empty b: constant 1, still a's colour
+        return vec7(t, 0.0, 0.0, 0.0, a[4], a[5], a[6])
+    if b[0] >= 1.0:
+        return vec7(t, 0.0, 0.0, 0.0, b[4], b[5], b[6])
+    return vec7(t, -b[1], -b[2], -b[3], b[4], b[5], b[6])
 
 
 @wp.func

@@ -19,7 +19,9 @@ blend inside ``b`` can exceed 1); the iso-surface ``F = 0.5`` is that of
 Colours: a blend (and a smooth blend, weighted by ``F_i^k``) takes the
 field-weighted mean of its children's colours; union, intersection and
 difference take the colour of the child that decides the value (ties go to
-the first operand). Where a field is 0 its colour is defined as black.
+the first operand; a difference whose ``F_b`` is 0 keeps ``a``'s colour even
+where ``F_a > 1`` is clamped to 1). Where a field is 0 its colour is defined
+as black.
 """
 
 from __future__ import annotations

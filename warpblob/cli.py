@@ -1,0 +1,154 @@
+"""The ``warpblob`` command line: ``demo``, ``info`` and ``field``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+from ._errors import WarpblobError
+
+__all__ = ["main"]
+
+
+def _load(scene: str):
+    from . import scenes
+
+    if scene in scenes.ALL:
+        return scenes.ALL[scene]()
+    names = ", ".join(scenes.ALL)
+    raise WarpblobError(f"unknown scene {scene!r}; built-in scenes are: {names}")
+
+
+def _info(model) -> dict:
+    from ._linearize import linearize
+
+    lm = linearize(model)
+    lo, hi = lm.bounds
+    return {
+        "primitives": lm.primitive_count,
+        "operators": lm.operator_count,
+        "depth": lm.depth,
+        "evaluation_nodes": lm.node_count,
+        "registers": lm.registers,
+        "bounds": [lo.round(4).tolist(), hi.round(4).tolist()],
+        "nbytes": lm.nbytes,
+        "bytes": lm.nbytes_by_part(),
+    }
+
+
+def _write_text(path: str, text: str) -> None:
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def cmd_info(args) -> int:
+    info = _info(_load(args.scene))
+    if args.json:
+        print(json.dumps(info, indent=2))
+    else:
+        for key, value in info.items():
+            print(f"{key:>17}: {value}")
+    return 0
+
+
+def cmd_field(args) -> int:
+    from .field import field
+
+    model = _load(args.scene)
+    try:
+        points = np.load(args.points, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise WarpblobError(f"cannot read points from {args.points!r}: {exc}") from None
+    values = field(model, points, device=args.device)
+    out = args.out or os.path.splitext(args.points)[0] + "_field.npy"
+    tmp = out + ".tmp.npy"
+    np.save(tmp, values)
+    os.replace(tmp, out)
+    print(f"wrote {len(values)} field values to {out}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from . import scenes
+    from ._progress import progress
+    from ._slices import save_slices
+    from .field import field
+
+    os.makedirs(args.out, exist_ok=True)
+    names = list(scenes.ALL) if args.scene == "all" else [args.scene]
+    rng = np.random.default_rng(0)
+    summary = {}
+    for name in progress(names, desc="demo"):
+        model = _load(name)
+        info = _info(model)
+        lo, hi = np.array(info["bounds"][0]), np.array(info["bounds"][1])
+        pts = rng.uniform(lo, hi, (200_000, 3)).astype(np.float32)
+        field(model, pts[:1000], device=args.device)  # compile / warm up
+        t0 = time.perf_counter()
+        values = field(model, pts, device=args.device)
+        seconds = time.perf_counter() - t0
+        info["points_per_second"] = round(len(pts) / seconds)
+        info["inside_fraction"] = round(float(np.mean(values >= 0.5)), 4)
+        picture = os.path.join(args.out, f"{name}_slices.png")
+        save_slices(model, picture, name=name, resolution=args.resolution, device=args.device)
+        info["picture"] = os.path.basename(picture)
+        summary[name] = info
+    _write_text(os.path.join(args.out, "summary.json"), json.dumps(summary, indent=2) + "\n")
+    lines = [f"{'model':<12}{'prims':>7}{'ops':>7}{'depth':>6}{'Mpts/s':>9}  picture"]
+    for name, info in summary.items():
+        lines.append(
+            f"{name:<12}{info['primitives']:>7}{info['operators']:>7}{info['depth']:>6}"
+            f"{info['points_per_second'] / 1e6:>9.2f}  {info['picture']}"
+        )
+    _write_text(os.path.join(args.out, "summary.txt"), "\n".join(lines) + "\n")
+    print("\n".join(lines))
+    print(f"wrote {len(summary)} pictures, summary.json and summary.txt to {args.out}")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="warpblob", description="BlobTree modelling of soft tissue on NVIDIA Warp.")
+    p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: Warp's default)")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    d = sub.add_parser("demo", help="evaluate the reference models and write field-slice pictures and a summary")
+    d.add_argument("--out", default="out", help="output folder (default: out)")
+    d.add_argument("--scene", default="all", help="one built-in scene, or all (default)")
+    d.add_argument("--resolution", type=int, default=256, help="pixels per slice side (default 256)")
+    d.set_defaults(func=cmd_demo)
+
+    i = sub.add_parser("info", help="counts, depth, box and bytes of a scene's linearized form")
+    i.add_argument("scene", help="built-in scene name")
+    i.add_argument("--json", action="store_true", help="print JSON")
+    i.set_defaults(func=cmd_info)
+
+    f = sub.add_parser("field", help="field values of a scene at points from an (N, 3) .npy file")
+    f.add_argument("scene", help="built-in scene name")
+    f.add_argument("--points", required=True, help="(N, 3) float .npy file")
+    f.add_argument("--out", default=None, help="output .npy (default: POINTS_field.npy)")
+    f.set_defaults(func=cmd_field)
+    return p
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``warpblob`` command; returns the exit code."""
+    args = _parser().parse_args(argv)
+    if getattr(args, "resolution", 64) < 8:
+        print("warpblob: error: --resolution must be at least 8", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except WarpblobError as exc:
+        print(f"warpblob: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
