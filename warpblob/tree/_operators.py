@@ -268,10 +268,9 @@ class Bend(Warp):
         self.rate = _check.scalar("Bend", "rate", rate)
         if self.rate == 0.0:
             raise ModelError("Bend: rate must be non-zero (leave the Bend out for no bend), got 0")
-        u = u / np.linalg.norm(u)
-        if self.rate < 0.0:
-            u = -u
-        self.direction, self.up = d, u
+        self.direction, self.up = d, u / np.linalg.norm(u)
+        # the kernel bends towards ``side`` with a positive radius
+        self.side = self.up if self.rate > 0.0 else -self.up
         self.rho = 1.0 / abs(self.rate)
         lo, hi = self._local_box(child.bounds())
         if max(abs(lo[0]), abs(hi[0])) >= np.pi * self.rho or hi[1] >= self.rho:
@@ -281,7 +280,7 @@ class Bend(Warp):
             )
 
     def _basis(self):
-        return np.array([self.direction, self.up, np.cross(self.direction, self.up)])
+        return np.array([self.direction, self.side, np.cross(self.direction, self.side)])
 
     def _local_box(self, box):
         lo, hi = box
@@ -293,7 +292,7 @@ class Bend(Warp):
         return np.array([*self.direction, self.rho])
 
     def data(self):
-        return self.up.copy()
+        return self.side.copy()
 
     def _warp_box(self, box):
         lo, hi = self._local_box(box)  # conservative box of the child in (x, y, z) bend coordinates
