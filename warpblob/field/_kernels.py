@@ -425,8 +425,9 @@ def combine_kind(kind: int, k: float, reverse: float, acc: vec7, r: vec7, first:
         w = r[0]
         gw = float(1.0)
         if kind == K_SMOOTH:
+            # accumulate S = sum F^k and sum F^(k-1) grad F; then grad (S^(1/k)) = S^(1/k - 1) sum F^(k-1) grad F
             w = wp.pow(r[0], k)
-            gw = k * wp.pow(r[0], k - 1.0)
+            gw = wp.pow(r[0], k - 1.0)
         lifted = vec7(w, gw * r[1], gw * r[2], gw * r[3], w * r[4], w * r[5], w * r[6])
         if first:
             return lifted

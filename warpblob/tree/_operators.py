@@ -18,8 +18,8 @@ blend inside ``b`` can exceed 1); the iso-surface ``F = 0.5`` is that of
 
 Colours: a blend (and a smooth blend, weighted by ``F_i^k``) takes the
 field-weighted mean of its children's colours; union, intersection and
-difference take the colour of the child that decides the value (ties go to
-the first operand; a difference whose ``F_b`` is 0 keeps ``a``'s colour even
+difference take the colour of the child that decides the value (exact ties
+go to the operand evaluated first, which the linearizer may reorder; a difference whose ``F_b`` is 0 keeps ``a``'s colour even
 where ``F_a > 1`` is clamped to 1). Where a field is 0 its colour is defined
 as black.
 """
@@ -131,8 +131,10 @@ class Difference(Operator):
     code = _kinds.DIFFERENCE
     min_children = 2
 
-    def __init__(self, a: Node, b: Node):
-        super().__init__(a, b)
+    def __init__(self, *operands: Node):
+        if len(operands) != 2:
+            raise ModelError(f"Difference: needs exactly 2 operands (a, b), got {len(operands)}")
+        super().__init__(*operands)
 
     def _compute_bounds(self):
         return self.children[0].bounds()

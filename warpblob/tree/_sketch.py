@@ -27,7 +27,7 @@ import numpy as np
 
 from .._errors import ModelError
 from . import _check, _kinds
-from ._node import BOX_PAD, box_union, frame_matrix
+from ._node import BOX_PAD, box_union, frame_matrix, rotation_matrix
 from ._primitives import Primitive
 
 __all__ = ["Sketch", "Inflate", "Revolve", "Sweep"]
@@ -41,7 +41,7 @@ def _tps_kernel(r):
 
 
 def _segments_intersect(p):
-    """True if any two non-adjacent edges of the closed polygon ``p`` cross."""
+    """The first pair ``(i, j)`` of non-adjacent edges of the closed polygon ``p`` that cross, or None."""
     n = len(p)
     a, b = p, np.roll(p, -1, axis=0)
 
@@ -55,7 +55,8 @@ def _segments_intersect(p):
     o2 = orient(a[i], b[i], b[j])
     o3 = orient(a[j], b[j], a[i])
     o4 = orient(a[j], b[j], b[i])
-    return bool(np.any((o1 * o2 < 0) & (o3 * o4 < 0)))
+    hit = np.nonzero((o1 * o2 < 0) & (o3 * o4 < 0))[0]
+    return (int(i[hit[0]]), int(j[hit[0]])) if len(hit) else None
 
 
 class Sketch:
@@ -88,8 +89,13 @@ class Sketch:
         size = float(np.max(np.ptp(pts, axis=0)))
         if abs(area) < 1e-6 * size * size or size < 1e-9:
             raise ModelError(f"Sketch: points2d encloses no area (degenerate contour), got area {area:.3g}")
-        if _segments_intersect(pts):
-            raise ModelError("Sketch: points2d must be a simple polygon; its edges cross")
+        crossing = _segments_intersect(pts)
+        if crossing is not None:
+            i, j = crossing
+            raise ModelError(
+                f"Sketch: points2d must be a simple polygon; edge {i} ({pts[i].tolist()} -> "
+                f"{pts[(i + 1) % len(pts)].tolist()}) crosses edge {j} ({pts[j].tolist()} -> {pts[(j + 1) % len(pts)].tolist()})"
+            )
         if area < 0.0:
             pts = pts[::-1]
         self.points = pts
@@ -240,13 +246,17 @@ class Sweep(Primitive):
             raise ModelError(f"Sweep: consecutive path points must differ (segment {int(np.argmin(lengths))} has zero length)")
         tangents = steps / lengths[:, None]
         frames = [frame_matrix(self.path[0], tangents[0])[:3, :3]]
-        for t in tangents[1:]:
-            prev = frames[-1]
-            # parallel transport: rotate the previous normal by the turn between tangents
-            n = prev[:, 0] - np.dot(prev[:, 0], t) * t
-            if np.linalg.norm(n) < 1e-9:
-                raise ModelError("Sweep: the path turns back on itself (180 degree corner)")
-            frames.append(frame_matrix(np.zeros(3), t, n / np.linalg.norm(n))[:3, :3])
+        for k in range(1, len(tangents)):
+            # parallel transport: turn the previous frame by the rotation taking
+            # the previous tangent to this one (Bishop frames)
+            t0, t1 = tangents[k - 1], tangents[k]
+            axis = np.cross(t0, t1)
+            sin, cos = float(np.linalg.norm(axis)), float(np.dot(t0, t1))
+            if sin < 1e-9 and cos < 0.0:
+                raise ModelError(f"Sweep: the path turns back on itself at point {k} ({self.path[k].tolist()})")
+            turn = rotation_matrix(axis / sin, np.arctan2(sin, cos)) if sin >= 1e-9 else np.eye(3)
+            normal = turn @ frames[-1][:, 0]
+            frames.append(frame_matrix(np.zeros(3), t1, normal)[:3, :3])
         self._rotations = np.array(frames)  # columns: normal, binormal, tangent
         self._lengths = lengths
 
