@@ -178,7 +178,8 @@ class LinearModel:
     parent frame), ``params`` (float32 (n, 4)).
 
     Placed table (primitives and warps, length ``placed_count``): ``inverse``
-    (float32 (m, 3, 4), parent frame to local), ``radius``, ``color`` (m, 3),
+    (float32 (m, 3, 4), parent frame to local), ``stretch`` (float32, the
+    spectral norm of the inverse's linear part), ``radius``, ``color`` (m, 3),
     ``data_start`` (int32) into the float32 ``data`` buffer.
 
     Grids of wide operators: ``grid_lower`` (g, 3), ``grid_inv_cell`` (g, 3),
@@ -201,6 +202,7 @@ class LinearModel:
     upper: np.ndarray
     params: np.ndarray
     inverse: np.ndarray
+    stretch: np.ndarray
     radius: np.ndarray
     color: np.ndarray
     data_start: np.ndarray
@@ -240,7 +242,7 @@ class LinearModel:
     def nbytes_by_part(self) -> dict:
         """Bytes per primitive, per operator and of the acceleration grids."""
         node_row = sum(getattr(self, k).itemsize * int(np.prod(getattr(self, k).shape[1:])) for k in ("kind", "skip", "parent", "ref", "lower", "upper", "params"))
-        placed_row = sum(getattr(self, k).itemsize * int(np.prod(getattr(self, k).shape[1:])) for k in ("inverse", "radius", "color", "data_start"))
+        placed_row = sum(getattr(self, k).itemsize * int(np.prod(getattr(self, k).shape[1:])) for k in ("inverse", "stretch", "radius", "color", "data_start"))
         grids = sum(getattr(self, k).nbytes for k in ("grid_lower", "grid_inv_cell", "grid_dims", "grid_base", "cell_offsets", "cell_items"))
         return {
             "per_primitive": node_row + placed_row,
@@ -342,6 +344,8 @@ def linearize(model: Node) -> LinearModel:
     placed = [k for k, n in enumerate(nodes) if n.inv is not None]
     ref[placed] = np.arange(len(placed), dtype=np.int32)
     inverse = np.array([nodes[k].inv for k in placed], dtype=np.float32).reshape(-1, 3, 4)
+    # largest stretch of each inverse map (spectral norm), padded against rounding
+    stretch = (np.linalg.norm(inverse[:, :, :3].astype(np.float64), ord=2, axis=(1, 2)) * (1.0 + 1e-5)).astype(np.float32) if len(placed) else np.zeros(0, np.float32)
     radius = np.array([nodes[k].radius for k in placed], dtype=np.float32)
     color = np.array([nodes[k].color for k in placed], dtype=np.float32).reshape(-1, 3)
     blocks = [nodes[k].data for k in placed]
@@ -377,6 +381,7 @@ def linearize(model: Node) -> LinearModel:
         upper=upper.astype(np.float32),
         params=params,
         inverse=inverse,
+        stretch=stretch,
         radius=radius,
         color=color,
         data_start=data_start,

@@ -1,5 +1,5 @@
 """The field engine: Warp kernels evaluating linearized BlobTrees."""
 
-from ._engine import color, evaluate, field, gradient
+from ._engine import bound_balls, color, evaluate, field, gradient
 
-__all__ = ["field", "gradient", "color", "evaluate"]
+__all__ = ["field", "gradient", "color", "evaluate", "bound_balls"]

@@ -10,7 +10,7 @@ from .._linearize import LinearModel, linearize
 from .._parallel import launch
 from . import _kernels
 
-__all__ = ["field", "gradient", "color", "evaluate", "model_arrays", "resolve_device"]
+__all__ = ["field", "gradient", "color", "evaluate", "bound_balls", "model_arrays", "resolve_device"]
 
 _KERNELS: dict = {}
 
@@ -20,6 +20,30 @@ def _kernel(prune: bool, derivatives: bool):
     if key not in _KERNELS:
         _KERNELS[key] = _kernels.make_kernel(prune, derivatives)
     return _KERNELS[key]
+
+
+def bound_balls(model, centers, radii, *, device=None, threads: int | None = None):
+    """Bounds ``(F_min, F_max)`` of the field over balls, (N, 2) float32.
+
+    Guaranteed: every point ``p`` with ``|p - centers[i]| <= radii[i]`` has
+    ``F_min <= F(p) <= F_max`` (conservative: F_max may be large where warps
+    or sketched primitives make the bound unknown).
+
+    Args:
+        centers: (N, 3) ball centres (numpy or Warp vec3 array).
+        radii: (N,) ball radii, model units.
+    """
+    lm = linearize(model)
+    pts, dev, was_numpy = _as_points(centers, device)
+    rad = radii if isinstance(radii, wp.array) else wp.array(np.asarray(radii, dtype=np.float32), dtype=wp.float32, device=dev)
+    n = pts.shape[0]
+    if rad.shape[0] != n:
+        raise WarpblobError(f"radii: expected {n} values, got {rad.shape[0]}")
+    out = wp.empty(n, dtype=wp.vec2, device=dev)
+    if "interval" not in _KERNELS:
+        _KERNELS["interval"] = _kernels.make_interval_kernel()
+    launch(_KERNELS["interval"], n, [model_arrays(lm, dev), pts, rad], [out], dev, threads)
+    return out.numpy().reshape(n, 2) if was_numpy else out
 
 
 def model_arrays(lm: LinearModel, device) -> _kernels.ModelArrays:
@@ -38,6 +62,7 @@ def model_arrays(lm: LinearModel, device) -> _kernels.ModelArrays:
     s.upper = wp.array(lm.upper, dtype=wp.vec3, device=device)
     s.params = wp.array(lm.params, dtype=wp.vec4, device=device)
     s.inverse = wp.array(lm.inverse, dtype=_kernels.mat34, device=device)
+    s.stretch = wp.array(lm.stretch, dtype=wp.float32, device=device)
     s.radius = wp.array(lm.radius, dtype=wp.float32, device=device)
     s.color = wp.array(lm.color, dtype=wp.vec3, device=device)
     s.data_start = wp.array(lm.data_start, dtype=wp.int32, device=device)

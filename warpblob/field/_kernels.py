@@ -57,6 +57,7 @@ class ModelArrays:
     upper: wp.array(dtype=wp.vec3)
     params: wp.array(dtype=wp.vec4)
     inverse: wp.array(dtype=mat34)
+    stretch: wp.array(dtype=wp.float32)
     radius: wp.array(dtype=wp.float32)
     color: wp.array(dtype=wp.vec3)
     data_start: wp.array(dtype=wp.int32)
@@ -475,8 +476,78 @@ def finalize_kind(kind: int, k: float, acc: vec7):
     return out
 
 
-def make_evaluate(prune: bool):
-    """The traversal as a Warp function, with or without pruning."""
+# --------------------------------------------------------------------------
+# interval mode: bounds of F over a ball (centre, radius), for empty-space rejection
+
+
+@wp.func
+def ball_meets_box(c: wp.vec3, rad: float, lo: wp.vec3, hi: wp.vec3):
+    return (
+        c[0] + rad >= lo[0] and c[0] - rad <= hi[0] and c[1] + rad >= lo[1] and c[1] - rad <= hi[1]
+        and c[2] + rad >= lo[2] and c[2] - rad <= hi[2]
+    )  # fmt: skip
+
+
+@wp.func
+def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float):
+    """(F_min, F_max) of primitive ``node`` over the ball: distances to a solid
+    skeleton are 1-Lipschitz, so d varies by at most the ball's radius in the
+    local frame (``rad`` times the stretch of the inverse map)."""
+    kind = m.kind[node]
+    if kind >= K_INFLATE:
+        # spline-based distances have no global Lipschitz bound: F is in [0, 1]
+        return vec7(0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    r = m.ref[node]
+    x = apply_inverse(m.inverse[r], c)
+    d = primitive_distance(kind, x, m.params[node], m.data, m.data_start[r])[0]
+    slack = rad * m.stretch[r]
+    rr = m.radius[r]
+    return vec7(falloff((d + slack) / rr)[0], falloff(wp.max(d - slack, 0.0) / rr)[0], 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@wp.func
+def combine_interval(kind: int, k: float, reverse: float, acc: vec7, r: vec7, first: bool):
+    """Interval counterpart of :func:`combine_kind`; every operator is monotone in each operand."""
+    lo = r[0]
+    hi = r[1]
+    if kind == K_SMOOTH:
+        lo = wp.pow(lo, k)
+        hi = wp.pow(hi, k)
+    if first:
+        return vec7(lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0)
+    if kind == K_BLEND or kind == K_SMOOTH:
+        return vec7(acc[0] + lo, acc[1] + hi, 0.0, 0.0, 0.0, 0.0, 0.0)
+    if kind == K_UNION:
+        return vec7(wp.max(acc[0], lo), wp.max(acc[1], hi), 0.0, 0.0, 0.0, 0.0, 0.0)
+    if kind == K_INTERSECTION:
+        return vec7(wp.min(acc[0], lo), wp.min(acc[1], hi), 0.0, 0.0, 0.0, 0.0, 0.0)
+    a = acc
+    b = r
+    if reverse > 0.5:
+        a = r
+        b = acc
+    return vec7(
+        wp.min(a[0], 1.0 - wp.min(b[1], 1.0)), wp.min(a[1], 1.0 - wp.min(b[0], 1.0)), 0.0, 0.0, 0.0, 0.0, 0.0
+    )
+
+
+@wp.func
+def finalize_interval(kind: int, k: float, acc: vec7):
+    if kind == K_SMOOTH:
+        return vec7(wp.pow(acc[0], 1.0 / k), wp.pow(acc[1], 1.0 / k), 0.0, 0.0, 0.0, 0.0, 0.0)
+    return acc
+
+
+def make_evaluate(prune: bool, interval: bool = False):
+    """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
+
+    Point mode (``interval`` False) returns (F, grad F, colour) at ``p``;
+    ``radius`` is ignored. Interval mode returns (F_min, F_max, 0...) over the
+    ball of ``radius`` around ``p``: it always prunes (by ball-box overlap),
+    treats a warp whose box meets the ball as unknown ([0, inf)), and visits
+    wide operators' operands by their boxes rather than a grid cell.
+    """
+    use_grid = prune and not interval
 
     @wp.func
     def get_slot(sv: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
@@ -485,7 +556,7 @@ def make_evaluate(prune: bool):
         return vec7(sv[sp], g[0], g[1], g[2], c[0], c[1], c[2])
 
     @wp.func
-    def evaluate(m: ModelArrays, p: wp.vec3):
+    def evaluate(m: ModelArrays, p: wp.vec3, radius: float):
         sv = vec_slots()
         sg = mat_slots3()
         sc = mat_slots3()
@@ -501,18 +572,30 @@ def make_evaluate(prune: bool):
         while True:
             if descending:
                 kind = m.kind[i]
-                if wp.static(prune) and not inside_box(q, m.lower[i], m.upper[i]):
+                outside = bool(False)
+                if wp.static(interval):
+                    outside = not ball_meets_box(q, radius, m.lower[i], m.upper[i])
+                elif wp.static(prune):
+                    outside = not inside_box(q, m.lower[i], m.upper[i])
+                if outside:
                     r = vec7()
                     descending = False
                 elif kind < K_PRIM_END:
-                    r = evaluate_primitive(m, i, q)
+                    if wp.static(interval):
+                        r = interval_primitive(m, i, q, radius)
+                    else:
+                        r = evaluate_primitive(m, i, q)
                     descending = False
                 elif kind >= K_TWIST:
-                    wsp += 1
-                    saved[wsp] = q
-                    q = warp_forward(m, i, q)
-                    i = i + 1
-                elif wp.static(prune) and m.ref[i] >= 0:
+                    if wp.static(interval):
+                        r = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0)
+                        descending = False
+                    else:
+                        wsp += 1
+                        saved[wsp] = q
+                        q = warp_forward(m, i, q)
+                        i = i + 1
+                elif wp.static(use_grid) and m.ref[i] >= 0:
                     # wide sparse operator: visit the operands listed in q's grid cell
                     gi = m.ref[i]
                     cell = wp.cw_mul(q - m.grid_lower[gi], m.grid_inv_cell[gi])
@@ -550,12 +633,16 @@ def make_evaluate(prune: bool):
                 else:
                     prm = m.params[par]
                     wide = bool(False)
-                    if wp.static(prune):
+                    if wp.static(use_grid):
                         wide = m.ref[par] >= 0
                     first = i == par + 1 and not wide
                     if first:
                         sp += 1
-                    acc = combine_kind(pk, prm[0], prm[0], get_slot(sv, sg, sc, sp), r, first)
+                    acc = vec7()
+                    if wp.static(interval):
+                        acc = combine_interval(pk, prm[0], prm[0], get_slot(sv, sg, sc, sp), r, first)
+                    else:
+                        acc = combine_kind(pk, prm[0], prm[0], get_slot(sv, sg, sc, sp), r, first)
                     sv[sp] = acc[0]
                     sg[sp] = wp.vec3(acc[1], acc[2], acc[3])
                     sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
@@ -568,13 +655,21 @@ def make_evaluate(prune: bool):
                         nxt = m.skip[i]
                         if nxt >= m.skip[par]:
                             nxt = -1
-                        if wp.static(prune) and pk == K_INTERSECTION and acc[0] <= 0.0:
-                            nxt = -1
+                        # an intersection that reached 0 stays 0 (every field is >= 0)
+                        if wp.static(prune) and pk == K_INTERSECTION:
+                            if wp.static(interval):
+                                if acc[1] <= 0.0:
+                                    nxt = -1
+                            elif acc[0] <= 0.0:
+                                nxt = -1
                     if nxt >= 0:
                         i = nxt
                         descending = True
                     else:
-                        r = finalize_kind(pk, prm[0], acc)
+                        if wp.static(interval):
+                            r = finalize_interval(pk, prm[0], acc)
+                        else:
+                            r = finalize_kind(pk, prm[0], acc)
                         sp -= 1
                         i = par
         return r
@@ -596,10 +691,29 @@ def make_kernel(prune: bool, derivatives: bool):
         colors: wp.array(dtype=wp.vec3),
     ):
         tid = wp.tid() + offset
-        r = evaluate(m, points[tid])
+        r = evaluate(m, points[tid], 0.0)
         values[tid] = r[0]
         if wp.static(derivatives):
             gradients[tid] = wp.vec3(r[1], r[2], r[3])
             colors[tid] = wp.vec3(r[4], r[5], r[6])
 
     return evaluate_points_kernel
+
+
+def make_interval_kernel():
+    """Kernel bounding F over balls: ``bounds[i] = (F_min, F_max)`` over ball ``(centers[i], radii[i])``."""
+    evaluate = make_evaluate(True, interval=True)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def bound_balls_kernel(
+        m: ModelArrays,
+        centers: wp.array(dtype=wp.vec3),
+        radii: wp.array(dtype=wp.float32),
+        offset: int,
+        bounds: wp.array(dtype=wp.vec2),
+    ):
+        tid = wp.tid() + offset
+        r = evaluate(m, centers[tid], radii[tid])
+        bounds[tid] = wp.vec2(r[0], r[1])
+
+    return bound_balls_kernel

@@ -27,7 +27,7 @@ import secrets
 from dataclasses import dataclass
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, Vt
+from pxr import Gf, Pcp, Sdf, Tf, Usd, UsdGeom, Vt
 
 from .._errors import ModelError, SceneError
 from ..tree import (
@@ -132,8 +132,8 @@ class _Param:
         """The parameter of ``node`` as written (float64)."""
         if self.name == "sketch":
             return node.sketch.points
-        if isinstance(node, Triangle):  # Triangle keeps p0, p1, p2 as rows of .points
-            return node.points[int(self.name[1])] if self.name != "radius" else node.radius
+        if self.name in ("p0", "p1", "p2"):  # a Triangle keeps its corners as the rows of .points
+            return node.points[int(self.name[1])]
         return np.asarray(getattr(node, self.name), dtype=np.float64)
 
 
@@ -343,8 +343,8 @@ def _set_transform(spec, matrix):
 def _author_layer(model, root: Sdf.Path, meters_per_unit: float, doc) -> Sdf.Layer:
     key_of, shared = _structure_keys(model)
     layer = Sdf.Layer.CreateAnonymous(".usda")
-    prototypes: dict[int, Sdf.Path] = {}
-    prototype_tasks = []
+    prototypes: dict[int, Sdf.Path] = {}  # structural key -> prototype prim
+    later = []  # prototypes to write once the model's own prims are done
     with Sdf.ChangeBlock():
         layer.defaultPrim = root.name
         layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
@@ -353,9 +353,7 @@ def _author_layer(model, root: Sdf.Path, meters_per_unit: float, doc) -> Sdf.Lay
             layer.documentation = str(doc)
         # a task: (node or Transform, prim path, operand order or None, written as a prototype)
         tasks = [(model, root, None, False)]
-        while tasks or prototype_tasks:
-            if not tasks:
-                tasks.append(prototype_tasks.pop(0))
+        while tasks:
             node, path, order, is_prototype = tasks.pop()
             matrix, node = _unwrap(node)
             spec = Sdf.CreatePrimInLayer(layer, path)
@@ -372,24 +370,30 @@ def _author_layer(model, root: Sdf.Path, meters_per_unit: float, doc) -> Sdf.Lay
             if key in shared and not is_prototype:
                 if key not in prototypes:
                     prototypes[key] = root.AppendChild(_PROTOTYPES).AppendChild(f"{node.kind}_{len(prototypes)}")
-                    prototype_tasks.append((node, prototypes[key], None, True))
+                    later.append((node, prototypes[key], None, True))
                 spec.referenceList.Prepend(Sdf.Reference(primPath=prototypes[key]))
-                continue
-            kind, kind_spec = _spec_of(node)
-            _set(spec, _KIND, _T.Token, kind, uniform=True)
-            for p in kind_spec.params:
-                _set(spec, p.attr, p.type.sdf, p.type.to_usd(p.value(node)))
-            if kind_spec.is_primitive:
-                _set(spec, _COLOR, _T.Color3fArray, Vt.Vec3fArray([Gf.Vec3f(*node.color.tolist())]))
-                _author_guide(spec, node)
-            for i in reversed(range(len(node.children))):
-                child = _unwrap(node.children[i])[1]
-                tasks.append((node.children[i], path.AppendChild(f"{child.kind}_{i}"), i, False))
-            if path == root and prototypes and not layer.GetPrimAtPath(root.AppendChild(_PROTOTYPES)):
-                Sdf.PrimSpec(spec, _PROTOTYPES, Sdf.SpecifierClass)
-        if prototypes and not layer.GetPrimAtPath(root.AppendChild(_PROTOTYPES)):
-            Sdf.PrimSpec(layer.GetPrimAtPath(root), _PROTOTYPES, Sdf.SpecifierClass)
+            else:
+                _author_node(spec, node)
+                for i in reversed(range(len(node.children))):
+                    child = node.children[i]
+                    tasks.append((child, path.AppendChild(f"{_unwrap(child)[1].kind}_{i}"), i, False))
+            if not tasks and later:
+                if not layer.GetPrimAtPath(root.AppendChild(_PROTOTYPES)):
+                    # last child of the root; abstract, so neither drawn nor read as an operand
+                    Sdf.PrimSpec(layer.GetPrimAtPath(root), _PROTOTYPES, Sdf.SpecifierClass)
+                tasks.append(later.pop(0))
     return layer
+
+
+def _author_node(spec, node):
+    """Kind, parameters and, for a primitive, colour and guide."""
+    kind, kind_spec = _spec_of(node)
+    _set(spec, _KIND, _T.Token, kind, uniform=True)
+    for p in kind_spec.params:
+        _set(spec, p.attr, p.type.sdf, p.type.to_usd(p.value(node)))
+    if kind_spec.is_primitive:
+        _set(spec, _COLOR, _T.Color3fArray, Vt.Vec3fArray([Gf.Vec3f(*node.color.tolist())]))
+        _author_guide(spec, node)
 
 
 # --- guides -----------------------------------------------------------------
@@ -441,13 +445,15 @@ def _extent(points, pad=0.0):
 
 def _author_guide(parent, node):
     gprim, shape = _guide_shape(node)
+    # previews need no more digits than this, and rounding drops noise like 3.8e-17
+    shape = {k: np.round(np.asarray(v, dtype=np.float64), 6) + 0.0 if k != "wrap" else v for k, v in shape.items()}
     spec = Sdf.PrimSpec(parent, _GUIDE, Sdf.SpecifierDef, gprim)
     _set(spec, "purpose", _T.Token, UsdGeom.Tokens.guide, uniform=True)
     if gprim in ("Sphere", "Cube"):
         ops = ["xformOp:translate"]
         _set(spec, ops[0], _T.Double3, Gf.Vec3d(*np.asarray(shape["translate"]).tolist()))
         if gprim == "Sphere":
-            r = shape["radius"]
+            r = float(shape["radius"])
             _set(spec, "radius", _T.Double, r)
             _set(spec, "extent", _T.Float3Array, Vt.Vec3fArray([Gf.Vec3f(-r, -r, -r), Gf.Vec3f(r, r, r)]))
         else:  # the unit cube spans [-1, 1]^3 (its fallback extent)
@@ -545,11 +551,9 @@ def _check_composition(stage, source, root: Sdf.Path):
         site = getattr(err, "rootSite", None)
         where = site.path if site is not None else root
         if where.HasPrefix(root) or root.HasPrefix(where):
-            what = "reference cycle" if err.errorType == _ARC_CYCLE else "composition error"
+            what = "reference cycle" if err.errorType == Pcp.ErrorType_ArcCycle else "composition error"
             raise SceneError(f"{source}: prim <{where}>: {what}: {_first_line(err)}")
 
-
-_ARC_CYCLE = getattr(__import__("pxr.Pcp", fromlist=["Pcp"]), "ErrorType_ArcCycle")
 
 _NODE_CHILDREN = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
 
@@ -600,8 +604,11 @@ class _Reader:
         if not prim.IsA(UsdGeom.Xformable):
             raise self.error(prim, None, f"node prims must be Xform prims, got type {prim.GetTypeName() or 'none'!r}")
         known = {_KIND, _ORDER, _VERSION} | {p.attr for p in kind.params}
-        for name in sorted(set(props) - known):
-            raise self.error(prim, name, f"not an attribute of kind {kind_name!r}; it has {', '.join(sorted(known))}")
+        unknown = sorted(set(props) - known)
+        if unknown:
+            raise self.error(
+                prim, unknown[0], f"not an attribute of kind {kind_name!r}; it has {', '.join(sorted(known))}"
+            )
         version = self.value(prim, props.get(_VERSION), _VERSION, "int")
         if version is not None and not 1 <= version <= FORMAT_VERSION:
             raise self.error(prim, _VERSION, f"format version {version} is not supported (this reader: 1..{FORMAT_VERSION})")
@@ -629,7 +636,7 @@ class _Reader:
         if isinstance(typ, str):  # token / int
             expected = _T.Token if typ == "token" else _T.Int
             if type_name != expected:
-                raise self.error(prim, name, f"must be {'uniform ' if typ == 'token' else ''}{typ}, got {type_name}")
+                raise self.error(prim, name, f"must be {typ}, got {type_name} {prop.Get()!r}")
         elif type_name.type not in typ.accepts:
             raise self.error(prim, name, f"must be {typ.name}, got {type_name} {prop.Get()!r}")
         v = prop.Get()
@@ -681,16 +688,19 @@ class _Reader:
         return [c for _, c in ordered]
 
     def transform(self, prim):
-        """The prim's local matrix (column-vector convention) or None if identity."""
+        """The prim's local matrix (column-vector convention), or None if it has no xformOps.
+
+        An identity xformOp still gives a matrix, so identity Transform nodes survive a round trip.
+        """
         xformable = UsdGeom.Xformable(prim)
         try:
             if xformable.GetResetXformStack():
                 raise self.error(prim, "xformOpOrder", "!resetXformStack! cannot be part of a model")
+            if not xformable.GetOrderedXformOps():
+                return None
             local = xformable.GetLocalTransformation()
         except Tf.ErrorException as err:
             raise self.error(prim, "xformOpOrder", _first_line(err)) from None
-        if local == Gf.Matrix4d(1.0):
-            return None
         return np.array(local, dtype=np.float64).T
 
     def build(self, prim, info: _PrimInfo, children) -> Node:

@@ -1,0 +1,17 @@
+"""BlobTree models in USD files: ``warpblob.usd.save_model`` and ``load_model``.
+
+``import warpblob.usd`` loads Pixar's ``pxr``; ``import warpblob`` does not.
+The file format is described in ``docs/usd_format.md``.
+
+Example:
+    >>> import os, tempfile
+    >>> import warpblob as wb
+    >>> import warpblob.usd
+    >>> path = wb.usd.save_model(wb.scenes.tumor(), os.path.join(tempfile.mkdtemp(), "tumor.usda"))
+    >>> wb.usd.load_model(path).primitive_count()
+    10
+"""
+
+from .io.usd import FORMAT_VERSION, METERS_PER_UNIT, load_model, save_model
+
+__all__ = ["save_model", "load_model", "FORMAT_VERSION", "METERS_PER_UNIT"]
