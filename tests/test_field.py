@@ -708,3 +708,16 @@ def test_warp_in_warp_out(layout, device):
     np.testing.assert_array_equal(values.numpy(), expect[0])
     np.testing.assert_array_equal(grads.numpy().reshape(-1, 3), expect[1])
     np.testing.assert_array_equal(colors.numpy().reshape(-1, 3), expect[2])
+
+
+def test_smooth_blend_colour_stays_finite_where_the_field_is_tiny(device):
+    # sum F_i^k is denormal in float32 near the support's edge; 1/S would overflow
+    model = wb.SmoothBlend(
+        wb.Point((0, 0, 0), 1.0, color=(1, 0, 0)), wb.Point((0.5, 0, 0), 1.0, color=(0, 1, 0)), k=3.0
+    )
+    pts = _f32(np.column_stack([np.linspace(0.99, 1.0005, 400), np.zeros(400), np.zeros(400)]))
+    values, grads, colors = wb.evaluate(model, pts, device=device)
+    assert np.all(np.isfinite(colors)) and np.all(np.isfinite(grads))
+    live = values > 0.0
+    assert live.any()
+    np.testing.assert_allclose(colors[live].sum(axis=1), 1.0, atol=1e-5)  # a convex mix of red and green

@@ -465,12 +465,12 @@ def finalize_kind(kind: int, k: float, acc: vec7):
     out = acc
     if kind == K_BLEND or kind == K_SMOOTH:
         if acc[0] > 0.0:
-            inv = 1.0 / acc[0]
-            out = vec7(acc[0], acc[1], acc[2], acc[3], acc[4] * inv, acc[5] * inv, acc[6] * inv)
+            # divide (not multiply by 1/S): S = sum F^k can be denormal, 1/S would overflow
+            s = acc[0]
+            out = vec7(s, acc[1], acc[2], acc[3], acc[4] / s, acc[5] / s, acc[6] / s)
             if kind == K_SMOOTH:
-                v = wp.pow(acc[0], 1.0 / k)
-                s = v * inv
-                out = vec7(v, s * acc[1], s * acc[2], s * acc[3], out[4], out[5], out[6])
+                v = wp.pow(s, 1.0 / k)
+                out = vec7(v, v * acc[1] / s, v * acc[2] / s, v * acc[3] / s, out[4], out[5], out[6])
     if out[0] <= 0.0:
         out = vec7()
     return out

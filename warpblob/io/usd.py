@@ -23,6 +23,7 @@ from __future__ import annotations
 import inspect
 import os
 import pathlib
+import re
 import secrets
 from dataclasses import dataclass
 
@@ -91,7 +92,7 @@ class _Type:
     name: str
     sdf: Sdf.ValueTypeName
     accepts: tuple  # Tf types (role-free) the reader takes
-    shape: tuple  # () scalar, (3,) vector, (None, k) array of k-vectors
+    shape: tuple | None  # () scalar, (3,) vector, (None, k) array of k-vectors; None: not a number
 
     def to_usd(self, value):
         if self.shape == ():
@@ -106,6 +107,8 @@ def _accepts(*names):
     return tuple(n.type for n in names)
 
 
+_TOKEN = _Type("token", _T.Token, _accepts(_T.Token), None)
+_INT = _Type("int", _T.Int, _accepts(_T.Int), None)
 _DOUBLE = _Type("double", _T.Double, _accepts(_T.Double, _T.Float, _T.Half), ())
 _DOUBLE3 = _Type("double3", _T.Double3, _accepts(_T.Double3, _T.Float3, _T.Half3), (3,))
 _DOUBLE3_ARRAY = _Type(
@@ -235,7 +238,7 @@ def save_model(
     target = pathlib.Path(path)
     if target.suffix not in _SUFFIXES:
         raise ValueError(f"save_model: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
-    root = Sdf.Path(prim_path) if Sdf.Path.IsValidPathString(prim_path) else Sdf.Path()
+    root = Sdf.Path(str(prim_path)) if Sdf.Path.IsValidPathString(str(prim_path)) else Sdf.Path()
     if not (root.IsRootPrimPath() and root.IsAbsolutePath()):
         raise ValueError(f"save_model: prim_path must be a root prim path like '/Model', got {prim_path!r}")
     if not (isinstance(meters_per_unit, (int, float)) and np.isfinite(meters_per_unit) and meters_per_unit > 0):
@@ -252,7 +255,7 @@ def save_model(
             raise OSError(f"save_model: USD could not write {str(temporary)!r}")
         os.replace(temporary, target)
     except Tf.ErrorException as err:
-        raise OSError(f"save_model: USD could not write {str(target)!r}: {_first_line(err)}") from None
+        raise OSError(f"save_model: USD could not write {str(target)!r}: {_one_line(err)}") from None
     finally:
         if temporary.exists():
             temporary.unlink()
@@ -414,7 +417,7 @@ def _guide_shape(node):
     surface = ISO_DISTANCE * node.radius
     if isinstance(node, Point):
         c = node.center
-        return "Sphere", {"radius": surface, "translate": c, "extent": (-surface, surface)}
+        return "Sphere", {"radius": surface, "translate": c}
     if isinstance(node, Box):
         return "Cube", {"translate": node.center, "scale": node.half_extents + surface}
     if isinstance(node, Cone):  # and Cylinder
@@ -512,7 +515,7 @@ def load_model(path, prim_path=None) -> Node:
     try:
         stage = Usd.Stage.Open(source, Usd.Stage.LoadAll)
     except Tf.ErrorException as err:
-        raise SceneError(f"{source}: not a readable USD file ({_first_line(err)})") from None
+        raise SceneError(f"{source}: not a readable USD file ({_one_line(err)})") from None
     if stage is None:
         raise SceneError(f"{source}: not a readable USD file")
     prim = _root_prim(stage, source, prim_path)
@@ -520,9 +523,12 @@ def load_model(path, prim_path=None) -> Node:
     return _Reader(source).read(prim)
 
 
-def _first_line(err) -> str:
-    text = " ".join(str(err).split())
-    return text[:300]
+def _one_line(err) -> str:
+    """A USD or warpblob error as one short line: Tf's commentary, no anonymous session layers."""
+    notes = [getattr(a, "commentary", None) for a in getattr(err, "args", ())]
+    text = "; ".join(n for n in notes if n) or str(err)
+    text = re.sub(r",@anon:[^@]*@", "", text)
+    return " ".join(text.split())[:400]
 
 
 def _root_prim(stage, source, prim_path):
@@ -552,10 +558,14 @@ def _check_composition(stage, source, root: Sdf.Path):
         where = site.path if site is not None else root
         if where.HasPrefix(root) or root.HasPrefix(where):
             what = "reference cycle" if err.errorType == Pcp.ErrorType_ArcCycle else "composition error"
-            raise SceneError(f"{source}: prim <{where}>: {what}: {_first_line(err)}")
+            raise SceneError(f"{source}: prim <{where}>: {what}: {_one_line(err)}")
 
 
 _NODE_CHILDREN = Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)
+
+
+def _type_of(prim) -> str:
+    return f"type {prim.GetTypeName()!r}" if prim.GetTypeName() else "an untyped prim"
 
 
 @dataclass
@@ -579,8 +589,15 @@ class _Reader:
 
     def read(self, root) -> Node:
         built: dict = {}
+        inherited = None  # colours are inherited like USD's constant primvars, from above the root too
+        ancestor = root.GetParent()
+        while inherited is None and ancestor and not ancestor.IsPseudoRoot():
+            attr = ancestor.GetAttribute(_COLOR)
+            if attr and attr.HasAuthoredValue():
+                inherited = self.color(ancestor, attr)
+            ancestor = ancestor.GetParent()
         # post-order without recursion: trees may be deeper than Python's stack
-        stack = [(root, None, None)]
+        stack = [(root, inherited, None)]
         while stack:
             prim, inherited, info = stack.pop()
             if info is None:
@@ -595,23 +612,25 @@ class _Reader:
     # --- one prim ------------------------------------------------------------
     def read_prim(self, prim, inherited) -> _PrimInfo:
         props = {p.GetName(): p for p in prim.GetAuthoredPropertiesInNamespace(_NS)}
-        kind_name = self.value(prim, props.get(_KIND), _KIND, "token")
+        kind_name = self.value(prim, props.get(_KIND), _KIND, _TOKEN)
         if kind_name is None:
             raise self.error(prim, _KIND, "missing (every node prim needs its kind token)")
         kind = _KINDS.get(kind_name)
         if kind is None:
             raise self.error(prim, _KIND, f"unknown kind {kind_name!r}; expected one of {', '.join(_KINDS)}")
         if not prim.IsA(UsdGeom.Xformable):
-            raise self.error(prim, None, f"node prims must be Xform prims, got type {prim.GetTypeName() or 'none'!r}")
+            raise self.error(prim, None, f"node prims must be Xform prims, got {_type_of(prim)}")
         known = {_KIND, _ORDER, _VERSION} | {p.attr for p in kind.params}
         unknown = sorted(set(props) - known)
         if unknown:
             raise self.error(
                 prim, unknown[0], f"not an attribute of kind {kind_name!r}; it has {', '.join(sorted(known))}"
             )
-        version = self.value(prim, props.get(_VERSION), _VERSION, "int")
+        version = self.value(prim, props.get(_VERSION), _VERSION, _INT)
         if version is not None and not 1 <= version <= FORMAT_VERSION:
-            raise self.error(prim, _VERSION, f"format version {version} is not supported (this reader: 1..{FORMAT_VERSION})")
+            raise self.error(
+                prim, _VERSION, f"format version {version} is not supported (this reader knows 1 to {FORMAT_VERSION})"
+            )
         params = {}
         for p in kind.params:
             v = self.value(prim, props.get(p.attr), p.attr, p.type)
@@ -633,17 +652,13 @@ class _Reader:
         if not isinstance(prop, Usd.Attribute):
             raise self.error(prim, name, "must be an attribute, found a relationship")
         type_name = prop.GetTypeName()
-        if isinstance(typ, str):  # token / int
-            expected = _T.Token if typ == "token" else _T.Int
-            if type_name != expected:
-                raise self.error(prim, name, f"must be {typ}, got {type_name} {prop.Get()!r}")
-        elif type_name.type not in typ.accepts:
+        if type_name.type not in typ.accepts:
             raise self.error(prim, name, f"must be {typ.name}, got {type_name} {prop.Get()!r}")
         v = prop.Get()
         if v is None:
             return None
-        if isinstance(typ, str):
-            return str(v) if typ == "token" else int(v)
+        if typ.shape is None:
+            return str(v) if typ is _TOKEN else int(v)
         arr = np.array(v, dtype=np.float64)
         if typ.shape == ():
             return float(arr)
@@ -666,7 +681,7 @@ class _Reader:
             props = child.GetAuthoredPropertiesInNamespace(_NS)
             if not props:
                 continue  # a guide, or a DCC tool's own prim
-            order = self.value(child, child.GetProperty(_ORDER) or None, _ORDER, "int")
+            order = self.value(child, child.GetProperty(_ORDER) or None, _ORDER, _INT)
             if order is None:
                 raise self.error(child, _ORDER, "missing (every operand prim needs its int order)")
             ordered.append((order, child))
@@ -700,7 +715,7 @@ class _Reader:
                 return None
             local = xformable.GetLocalTransformation()
         except Tf.ErrorException as err:
-            raise self.error(prim, "xformOpOrder", _first_line(err)) from None
+            raise self.error(prim, "xformOpOrder", _one_line(err)) from None
         return np.array(local, dtype=np.float64).T
 
     def build(self, prim, info: _PrimInfo, children) -> Node:
@@ -710,30 +725,33 @@ class _Reader:
                 try:
                     params["sketch"] = Sketch(params["sketch"])
                 except ModelError as err:
-                    raise self.error(prim, f"{_NS}:sketch", str(err)) from None
+                    raise self.error(prim, f"{_NS}:sketch", _one_line(err)) from None
             if kind.is_primitive:
                 node = kind.cls(**params, color=DEFAULT_COLOR if info.color is None else info.color)
             else:
                 node = kind.cls(*children, **params)
         except ModelError as err:
-            raise self.error(prim, self.blame(kind, str(err)), str(err)) from None
+            raise self.error(prim, self.blame(kind, str(err)), _one_line(err)) from None
         if info.matrix is not None:
             try:
                 node = Transform(node, info.matrix)
             except ModelError as err:
-                raise self.error(prim, "xformOpOrder", str(err)) from None
+                raise self.error(prim, "xformOpOrder", _one_line(err)) from None
         return node
 
     @staticmethod
     def blame(kind: _Kind, message: str) -> str:
-        """The attribute a constructor's ModelError ("Cls: name ...") is about."""
+        """The attribute a constructor's ModelError is about: it starts "Cls: name ...".
+
+        When the first word names no parameter, every parameter of the kind is named.
+        """
         words = message.split(": ", 1)[-1].split()
         word = words[0] if words else ""
+        names = [p.name for p in kind.params]
         if word == "color":
             return _COLOR
-        names = [p.name for p in kind.params]
         if word in names:
             return f"{_NS}:{word}"
-        if word == "points" and kind.cls is Triangle:  # Triangle validates as a Polygon
-            return ", ".join(f"{_NS}:{n}" for n in ("p0", "p1", "p2"))
+        if kind.cls is Triangle and word == "points":  # a Triangle validates its corners as a Polygon
+            names = ["p0", "p1", "p2"]
         return ", ".join(f"{_NS}:{n}" for n in names)
