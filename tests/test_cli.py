@@ -88,3 +88,25 @@ def test_demo_writes_pictures_and_summary(tmp_path):
     png = (out / "peanut_slices.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
     assert not any(".tmp" in p.name for p in out.iterdir())
+
+
+def test_info_and_field_read_usd_scenes(tmp_path):
+    scene = os.path.join(os.path.dirname(__file__), "..", "usd_scenes", "tumor.usda")
+    r = run_cli("info", scene, "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["primitives"] == 10
+    pts = np.random.default_rng(1).uniform(-2, 2, (300, 3)).astype(np.float32)
+    np.save(tmp_path / "p.npy", pts)
+    r = run_cli("field", scene, "--points", str(tmp_path / "p.npy"), "--out", str(tmp_path / "f.npy"))
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(np.load(tmp_path / "f.npy"), wb.field(wb.scenes.tumor(), pts), atol=1e-6)
+
+
+@pytest.mark.parametrize("content, words", [(None, "does not exist"), ("#usda 1.0\n(\n", "scene.usda")])
+def test_bad_usd_scene_is_one_line(tmp_path, content, words):
+    path = tmp_path / "scene.usda"
+    if content is not None:
+        path.write_text(content)
+    r = run_cli("info", str(path))
+    assert r.returncode == 1
+    assert "Traceback" not in r.stderr and words in r.stderr

@@ -51,6 +51,15 @@ from .tree import (
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name):
+    # ``warpblob.usd`` loads pxr, so it is imported on first use only
+    if name == "usd":
+        import importlib
+
+        return importlib.import_module(".usd", __name__)
+    raise AttributeError(f"module 'warpblob' has no attribute {name!r}")
+
 __all__ = [
     "WarpblobError",
     "ModelError",

@@ -15,13 +15,24 @@ from ._errors import WarpblobError
 __all__ = ["main"]
 
 
+_USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
 def _load(scene: str):
+    """A built-in scene by name, or a model from a USD file."""
     from . import scenes
 
     if scene in scenes.ALL:
         return scenes.ALL[scene]()
+    if scene.lower().endswith(_USD_SUFFIXES) or os.path.sep in scene:
+        from .io.usd import load_model
+
+        try:
+            return load_model(scene)
+        except FileNotFoundError:
+            raise WarpblobError(f"scene file {scene!r} does not exist") from None
     names = ", ".join(scenes.ALL)
-    raise WarpblobError(f"unknown scene {scene!r}; built-in scenes are: {names}")
+    raise WarpblobError(f"unknown scene {scene!r}; give a USD file or one of the built-in scenes: {names}")
 
 
 def _info(model) -> dict:
@@ -125,12 +136,12 @@ def _parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     i = sub.add_parser("info", help="counts, depth, box and bytes of a scene's linearized form")
-    i.add_argument("scene", help="built-in scene name")
+    i.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=cmd_info)
 
     f = sub.add_parser("field", help="field values of a scene at points from an (N, 3) .npy file")
-    f.add_argument("scene", help="built-in scene name")
+    f.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")
     f.add_argument("--points", required=True, help="(N, 3) float .npy file")
     f.add_argument("--out", default=None, help="output .npy (default: POINTS_field.npy)")
     f.set_defaults(func=cmd_field)
