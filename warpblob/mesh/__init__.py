@@ -1,0 +1,5 @@
+"""Mesh types: triangle surfaces (and, later, tetrahedral meshes)."""
+
+from ._surface import SurfaceMesh
+
+__all__ = ["SurfaceMesh"]

@@ -1,0 +1,479 @@
+"""Warp kernels of the block-sparse polygonizer (see :mod:`warpblob.polygonize`)."""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..field._kernels import ModelArrays, make_evaluate, vec7
+from ._tables import APEX
+
+BLOCK = 8  # cells per block side
+SIDE = BLOCK + 1  # samples per block side
+SAMPLES = SIDE * SIDE * SIDE
+CELLS = BLOCK * BLOCK * BLOCK
+MAX_LOOP = 12
+
+_BLOCK = wp.constant(BLOCK)
+_SIDE = wp.constant(SIDE)
+_SAMPLES = wp.constant(SAMPLES)
+_CELLS = wp.constant(CELLS)
+_APEX = wp.constant(APEX)
+
+vec12i = wp.types.vector(length=MAX_LOOP, dtype=wp.int32)
+vec8 = wp.types.vector(length=8, dtype=wp.float32)
+
+
+@wp.struct
+class Grid:
+    origin: wp.vec3  # position of global vertex (0, 0, 0)
+    h: float  # cell size
+    cells: wp.vec3i  # cells per axis; vertices run 0..cells
+    blocks: wp.vec3i  # blocks per axis
+
+
+@wp.func
+def vertex_position(g: Grid, gx: int, gy: int, gz: int):
+    return g.origin + g.h * wp.vec3(float(gx), float(gy), float(gz))
+
+
+@wp.func
+def block_coords(g: Grid, b: int):
+    return wp.vec3i(b % g.blocks[0], (b // g.blocks[0]) % g.blocks[1], b // (g.blocks[0] * g.blocks[1]))
+
+
+@wp.func
+def sample_index(i: int, j: int, k: int):
+    return (k * _SIDE + j) * _SIDE + i
+
+
+@wp.func
+def inside(v: float, iso: float):
+    return v >= iso
+
+
+def make_kernels():
+    """Build the polygonizer kernels (compiled once per process and device)."""
+    bound = make_evaluate(True, interval=True)
+    value = make_evaluate(True)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def classify_blocks_kernel(m: ModelArrays, g: Grid, iso: float, offset: int, flags: wp.array(dtype=wp.int32)):
+        b = wp.tid() + offset
+        c = block_coords(g, b)
+        half = 0.5 * float(_BLOCK) * g.h
+        center = g.origin + g.h * float(_BLOCK) * wp.vec3(float(c[0]), float(c[1]), float(c[2])) + wp.vec3(half)
+        r = bound(m, center, half * 1.7320509 * 1.0001)
+        # a block is active unless every point of it is provably on one side
+        active = int(1)
+        if r[1] < iso or r[0] >= iso:
+            active = 0
+        flags[b] = active
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def sample_blocks_kernel(
+        m: ModelArrays, g: Grid, active: wp.array(dtype=wp.int32), offset: int, samples: wp.array(dtype=wp.float32)
+    ):
+        tid = wp.tid() + offset
+        a = tid // _SAMPLES
+        s = tid - a * _SAMPLES
+        c = block_coords(g, active[a])
+        i = s % _SIDE
+        j = (s // _SIDE) % _SIDE
+        k = s // (_SIDE * _SIDE)
+        p = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
+        samples[tid] = value(m, p, 0.0)[0]
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def count_kernel(
+        g: Grid,
+        iso: float,
+        active: wp.array(dtype=wp.int32),
+        samples: wp.array(dtype=wp.float32),
+        table: wp.array2d(dtype=wp.int32),
+        faces: wp.array(dtype=wp.vec4i),
+        offset: int,
+        edge_masks: wp.array(dtype=wp.int32),
+        vertex_counts: wp.array(dtype=wp.int32),
+        entries: wp.array(dtype=wp.int32),
+        triangle_counts: wp.array(dtype=wp.int32),
+        centre_counts: wp.array(dtype=wp.int32),
+    ):
+        tid = wp.tid() + offset
+        a = tid // _CELLS
+        l = tid - a * _CELLS
+        c = block_coords(g, active[a])
+        i = l % _BLOCK
+        j = (l // _BLOCK) % _BLOCK
+        k = l // (_BLOCK * _BLOCK)
+        gx = c[0] * _BLOCK + i
+        gy = c[1] * _BLOCK + j
+        gz = c[2] * _BLOCK + k
+        base = a * _SAMPLES
+        s0 = inside(samples[base + sample_index(i, j, k)], iso)
+        # crossed edges owned by vertex (i, j, k): +x, +y, +z, inside the grid
+        mask = int(0)
+        if gx <= g.cells[0] and gy <= g.cells[1] and gz <= g.cells[2]:
+            if gx < g.cells[0] and inside(samples[base + sample_index(i + 1, j, k)], iso) != s0:
+                mask = mask | 1
+            if gy < g.cells[1] and inside(samples[base + sample_index(i, j + 1, k)], iso) != s0:
+                mask = mask | 2
+            if gz < g.cells[2] and inside(samples[base + sample_index(i, j, k + 1)], iso) != s0:
+                mask = mask | 4
+        edge_masks[tid] = mask
+        vertex_counts[tid] = (mask & 1) + ((mask >> 1) & 1) + ((mask >> 2) & 1)
+        # cell configuration and ambiguous-face resolution
+        entry = int(0)
+        count = int(0)
+        centres = int(0)
+        if gx < g.cells[0] and gy < g.cells[1] and gz < g.cells[2]:
+            vals = vec8()
+            config = int(0)
+            for n in range(8):
+                v = samples[base + sample_index(i + (n & 1), j + ((n >> 1) & 1), k + ((n >> 2) & 1))] - iso
+                vals[n] = v
+                if v >= 0.0:
+                    config = config | (1 << n)
+            bits = int(0)
+            for f in range(6):
+                q = faces[f]
+                v0 = vals[q[0]]
+                v1 = vals[q[1]]
+                v2 = vals[q[2]]
+                v3 = vals[q[3]]
+                if (v0 >= 0.0) == (v2 >= 0.0) and (v1 >= 0.0) == (v3 >= 0.0) and (v0 >= 0.0) != (v1 >= 0.0):
+                    # asymptotic decider: the inside pair is joined when the bilinear
+                    # saddle is inside, i.e. its product is at least the outside pair's
+                    p_in = v0 * v2
+                    p_out = v1 * v3
+                    if v1 >= 0.0:
+                        p_in = v1 * v3
+                        p_out = v0 * v2
+                    if p_in >= p_out:
+                        bits = bits | (1 << f)
+            entry = config * 64 + bits
+            for lp in range(table[entry, 1]):
+                n = table[entry, 2 + lp]
+                if table[entry, _APEX + lp] != 0:
+                    count += n - 2
+                else:
+                    count += n
+                    centres += 1
+        entries[tid] = entry
+        triangle_counts[tid] = count
+        centre_counts[tid] = centres
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def vertex_kernel(
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        tolerance: float,
+        max_iterations: int,
+        active: wp.array(dtype=wp.int32),
+        samples: wp.array(dtype=wp.float32),
+        edge_masks: wp.array(dtype=wp.int32),
+        vertex_offsets: wp.array(dtype=wp.int32),
+        offset: int,
+        positions: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        colors: wp.array(dtype=wp.vec3),
+        evaluations: wp.array(dtype=wp.int32),
+    ):
+        tid = wp.tid() + offset
+        mask = edge_masks[tid]
+        if mask == 0:
+            return
+        a = tid // _CELLS
+        l = tid - a * _CELLS
+        c = block_coords(g, active[a])
+        i = l % _BLOCK
+        j = (l // _BLOCK) % _BLOCK
+        k = l // (_BLOCK * _BLOCK)
+        p0 = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
+        base = a * _SAMPLES
+        f0 = samples[base + sample_index(i, j, k)] - iso
+        out = vertex_offsets[tid]
+        for axis in range(3):
+            if (mask >> axis) & 1 != 0:
+                step = wp.vec3(0.0)
+                step[axis] = g.h
+                f1 = float(0.0)
+                if axis == 0:
+                    f1 = samples[base + sample_index(i + 1, j, k)] - iso
+                elif axis == 1:
+                    f1 = samples[base + sample_index(i, j + 1, k)] - iso
+                else:
+                    f1 = samples[base + sample_index(i, j, k + 1)] - iso
+                # Illinois (modified regula falsi) on the bracket [0, 1] of the edge
+                ta = float(0.0)
+                tb = float(1.0)
+                fa = f0
+                fb = f1
+                side = int(0)
+                t = fa / (fa - fb)
+                r = vec7()
+                count = int(0)
+                for _it in range(max_iterations):
+                    r = value(m, p0 + t * step, 0.0)
+                    count += 1
+                    ft = r[0] - iso
+                    if wp.abs(ft) <= tolerance:
+                        break
+                    if (ft >= 0.0) == (fa >= 0.0):
+                        ta = t
+                        fa = ft
+                        if side == -1:
+                            fb = 0.5 * fb
+                        side = -1
+                    else:
+                        tb = t
+                        fb = ft
+                        if side == 1:
+                            fa = 0.5 * fa
+                        side = 1
+                    t = (ta * fb - tb * fa) / (fb - fa)
+                grad = wp.vec3(r[1], r[2], r[3])
+                positions[out] = p0 + t * step
+                normals[out] = -wp.normalize(grad)
+                colors[out] = wp.vec3(r[4], r[5], r[6])
+                evaluations[out] = count
+                out += 1
+
+    @wp.func
+    def edge_vertex(
+        g: Grid,
+        b: wp.vec3i,
+        li: int,
+        lj: int,
+        lk: int,
+        axis: int,
+        block_map: wp.array(dtype=wp.int32),
+        edge_masks: wp.array(dtype=wp.int32),
+        vertex_offsets: wp.array(dtype=wp.int32),
+    ):
+        """Index of the vertex on the edge owned by block-local vertex (li, lj, lk)."""
+        gx = b[0] * _BLOCK + li
+        gy = b[1] * _BLOCK + lj
+        gz = b[2] * _BLOCK + lk
+        bx = gx // _BLOCK
+        by = gy // _BLOCK
+        bz = gz // _BLOCK
+        a = block_map[(bz * g.blocks[1] + by) * g.blocks[0] + bx]
+        o = a * _CELLS + ((gz - bz * _BLOCK) * _BLOCK + (gy - by * _BLOCK)) * _BLOCK + (gx - bx * _BLOCK)
+        mask = edge_masks[o]
+        below = mask & ((1 << axis) - 1)
+        return vertex_offsets[o] + (below & 1) + ((below >> 1) & 1)
+
+    @wp.func
+    def smallest_angle(p0: wp.vec3, p1: wp.vec3, p2: wp.vec3):
+        """The smallest interior angle of a triangle, radians."""
+        e0 = wp.normalize(p1 - p0)
+        e1 = wp.normalize(p2 - p1)
+        e2 = wp.normalize(p0 - p2)
+        c0 = -wp.dot(e2, e0)
+        c1 = -wp.dot(e0, e1)
+        c2 = -wp.dot(e1, e2)
+        # the smallest angle has the largest cosine
+        return wp.acos(wp.clamp(wp.max(wp.max(c0, c1), c2), -1.0, 1.0))
+
+    @wp.func
+    def loop_ids(
+        g: Grid,
+        b: wp.vec3i,
+        i: int,
+        j: int,
+        k: int,
+        table: wp.array2d(dtype=wp.int32),
+        entry: int,
+        first: int,
+        n: int,
+        edge_info: wp.array(dtype=wp.vec4i),
+        block_map: wp.array(dtype=wp.int32),
+        edge_masks: wp.array(dtype=wp.int32),
+        vertex_offsets: wp.array(dtype=wp.int32),
+    ):
+        """Vertex indices of one loop of cell (i, j, k) of block ``b``."""
+        ids = vec12i()
+        for t in range(n):
+            e = edge_info[table[entry, 6 + first + t]]
+            ids[t] = edge_vertex(g, b, i + e[0], j + e[1], k + e[2], e[3], block_map, edge_masks, vertex_offsets)
+        return ids
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def centre_kernel(
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        tolerance: float,
+        max_iterations: int,
+        active: wp.array(dtype=wp.int32),
+        block_map: wp.array(dtype=wp.int32),
+        entries: wp.array(dtype=wp.int32),
+        centre_counts: wp.array(dtype=wp.int32),
+        centre_offsets: wp.array(dtype=wp.int32),
+        first_centre: int,
+        table: wp.array2d(dtype=wp.int32),
+        edge_info: wp.array(dtype=wp.vec4i),
+        edge_masks: wp.array(dtype=wp.int32),
+        vertex_offsets: wp.array(dtype=wp.int32),
+        offset: int,
+        positions: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        colors: wp.array(dtype=wp.vec3),
+        evaluations: wp.array(dtype=wp.int32),
+    ):
+        """A vertex for each loop that no fan can triangulate: the loop's
+        centroid, moved onto the surface by Newton steps along the gradient."""
+        tid = wp.tid() + offset
+        if centre_counts[tid] == 0:
+            return
+        a = tid // _CELLS
+        l = tid - a * _CELLS
+        b = block_coords(g, active[a])
+        i = l % _BLOCK
+        j = (l // _BLOCK) % _BLOCK
+        k = l // (_BLOCK * _BLOCK)
+        entry = entries[tid]
+        out = first_centre + centre_offsets[tid]
+        first = int(0)
+        for lp in range(table[entry, 1]):
+            n = table[entry, 2 + lp]
+            if table[entry, _APEX + lp] == 0:
+                ids = loop_ids(g, b, i, j, k, table, entry, first, n, edge_info, block_map, edge_masks, vertex_offsets)
+                x = wp.vec3(0.0)
+                for t in range(n):
+                    x += positions[ids[t]]
+                x = x / float(n)
+                r = vec7()
+                count = int(0)
+                for _it in range(max_iterations):
+                    r = value(m, x, 0.0)
+                    count += 1
+                    ft = r[0] - iso
+                    grad = wp.vec3(r[1], r[2], r[3])
+                    gg = wp.dot(grad, grad)
+                    if wp.abs(ft) <= tolerance or gg <= 0.0:
+                        break
+                    step = -(ft / gg) * grad
+                    length = wp.length(step)
+                    if length > 0.5 * g.h:
+                        step = step * (0.5 * g.h / length)
+                    x = x + step
+                positions[out] = x
+                normals[out] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
+                colors[out] = wp.vec3(r[4], r[5], r[6])
+                evaluations[out] = count
+                out += 1
+            first += n
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def face_kernel(
+        g: Grid,
+        active: wp.array(dtype=wp.int32),
+        block_map: wp.array(dtype=wp.int32),
+        entries: wp.array(dtype=wp.int32),
+        triangle_counts: wp.array(dtype=wp.int32),
+        triangle_offsets: wp.array(dtype=wp.int32),
+        centre_offsets: wp.array(dtype=wp.int32),
+        first_centre: int,
+        table: wp.array2d(dtype=wp.int32),
+        edge_info: wp.array(dtype=wp.vec4i),
+        edge_masks: wp.array(dtype=wp.int32),
+        vertex_offsets: wp.array(dtype=wp.int32),
+        positions: wp.array(dtype=wp.vec3),
+        offset: int,
+        triangles: wp.array(dtype=wp.vec3i),
+    ):
+        tid = wp.tid() + offset
+        if triangle_counts[tid] == 0:
+            return
+        a = tid // _CELLS
+        l = tid - a * _CELLS
+        b = block_coords(g, active[a])
+        i = l % _BLOCK
+        j = (l // _BLOCK) % _BLOCK
+        k = l // (_BLOCK * _BLOCK)
+        entry = entries[tid]
+        out = triangle_offsets[tid]
+        centre = first_centre + centre_offsets[tid]
+        first = int(0)
+        for lp in range(table[entry, 1]):
+            n = table[entry, 2 + lp]
+            apexes = table[entry, _APEX + lp]
+            ids = loop_ids(g, b, i, j, k, table, entry, first, n, edge_info, block_map, edge_masks, vertex_offsets)
+            if apexes == 0:
+                for t in range(n):
+                    triangles[out] = wp.vec3i(ids[t], ids[(t + 1) % n], centre)
+                    out += 1
+                centre += 1
+            else:
+                # fan from the allowed apex that maximizes the smallest angle
+                apex = int(-1)
+                best = float(-1.0)
+                for s in range(n):
+                    if (apexes >> s) & 1 != 0:
+                        worst = float(10.0)
+                        for t in range(1, n - 1):
+                            ang = smallest_angle(
+                                positions[ids[s]], positions[ids[(s + t) % n]], positions[ids[(s + t + 1) % n]]
+                            )
+                            worst = wp.min(worst, ang)
+                        if worst > best or apex < 0:
+                            best = worst
+                            apex = s
+                for t in range(1, n - 1):
+                    triangles[out] = wp.vec3i(ids[apex], ids[(apex + t) % n], ids[(apex + t + 1) % n])
+                    out += 1
+            first += n
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def degenerate_kernel(
+        positions: wp.array(dtype=wp.vec3),
+        triangles: wp.array(dtype=wp.vec3i),
+        offset: int,
+        keep: wp.array(dtype=wp.int32),
+    ):
+        tid = wp.tid() + offset
+        t = triangles[tid]
+        p0 = positions[t[0]]
+        n = wp.cross(positions[t[1]] - p0, positions[t[2]] - p0)
+        keep[tid] = wp.where(wp.length_sq(n) > 0.0, 1, 0)
+
+    return {
+        "classify": classify_blocks_kernel,
+        "sample": sample_blocks_kernel,
+        "count": count_kernel,
+        "vertex": vertex_kernel,
+        "centre": centre_kernel,
+        "face": face_kernel,
+        "degenerate": degenerate_kernel,
+    }
+
+
+@wp.kernel(enable_backward=False)
+def compact_kernel(
+    flags: wp.array(dtype=wp.int32), scanned: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.int32)
+):
+    """``out[scanned[i]] = i`` for every flagged ``i`` (exclusive scan)."""
+    tid = wp.tid() + offset
+    if flags[tid] != 0:
+        out[scanned[tid]] = tid
+
+
+@wp.kernel(enable_backward=False)
+def compact_triangles_kernel(
+    triangles: wp.array(dtype=wp.vec3i),
+    keep: wp.array(dtype=wp.int32),
+    scanned: wp.array(dtype=wp.int32),
+    offset: int,
+    out: wp.array(dtype=wp.vec3i),
+):
+    tid = wp.tid() + offset
+    if keep[tid] != 0:
+        out[scanned[tid]] = triangles[tid]
+
+
+@wp.kernel(enable_backward=False)
+def block_map_kernel(active: wp.array(dtype=wp.int32), offset: int, block_map: wp.array(dtype=wp.int32)):
+    tid = wp.tid() + offset
+    block_map[active[tid]] = tid

@@ -1,0 +1,306 @@
+"""Host side of the polygonizer: stages, memory checks, statistics."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import warp as wp
+
+from .._errors import ResourceError, WarpblobError
+from .._linearize import linearize
+from .._parallel import launch
+from ..field._engine import model_arrays, resolve_device
+from ..mesh import SurfaceMesh
+from ..tree import ISO_VALUE
+from . import _kernels, _tables
+
+__all__ = ["polygonize", "available_memory"]
+
+_CACHE: dict = {}
+
+
+def _kernel_set():
+    if "kernels" not in _CACHE:
+        _CACHE["kernels"] = _kernels.make_kernels()
+    return _CACHE["kernels"]
+
+
+def _device_tables(device):
+    key = ("tables", str(device))
+    if key not in _CACHE:
+        if "loop_table" not in _CACHE:
+            _CACHE["loop_table"] = _tables.build_loop_table()
+        table = wp.array(_CACHE["loop_table"], dtype=wp.int32, device=device)
+        faces = wp.array(np.array([f[2] for f in _tables.FACES], dtype=np.int32), dtype=wp.vec4i, device=device)
+        info = np.column_stack([_tables.EDGE_ORIGIN, _tables.EDGE_AXIS]).astype(np.int32)
+        edges = wp.array(info, dtype=wp.vec4i, device=device)
+        _CACHE[key] = (table, faces, edges)
+    return _CACHE[key]
+
+
+def available_memory(device) -> int:
+    """Bytes that can still be allocated on ``device`` (host RAM for the CPU)."""
+    device = wp.get_device(device)
+    if device.is_cuda:
+        return int(device.free_memory)
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
+
+
+def _check_memory(stage: str, need: int, limit: int) -> None:
+    if need > limit:
+        raise ResourceError(
+            f"polygonize: the {stage} stage needs an estimated {need / 2**20:.1f} MiB, "
+            f"more than the {limit / 2**20:.1f} MiB available; use a larger cellsize or smaller bounds"
+        )
+
+
+def _scan(counts: wp.array) -> tuple[wp.array, int]:
+    """Exclusive prefix sum of int32 ``counts`` and the total (one host sync)."""
+    offsets = wp.empty_like(counts)
+    if counts.shape[0] == 0:
+        return offsets, 0
+    wp.utils.array_scan(counts, offsets, inclusive=False)
+    # host sync: the total sizes the next stage's allocation
+    last = int(offsets[-1:].numpy()[0]) + int(counts[-1:].numpy()[0])
+    return offsets, last
+
+
+def _compact(flags: wp.array, device, threads) -> wp.array:
+    offsets, total = _scan(flags)
+    out = wp.empty(total, dtype=wp.int32, device=device)
+    launch(_kernels.compact_kernel, flags.shape[0], [flags, offsets], [out], device, threads)
+    return out
+
+
+def _grid(lm, cellsize, bounds):
+    if bounds is None:
+        lo, hi = lm.bounds
+        if np.any(lo > hi):
+            return None
+        # half a cell of margin: the outermost vertices see F = 0, so the mesh closes
+        lo = lo - 0.5 * cellsize
+        hi = hi + 0.5 * cellsize
+    else:
+        try:
+            lo, hi = (np.asarray(b, dtype=np.float64).reshape(3) for b in bounds)
+        except (TypeError, ValueError):
+            raise WarpblobError(f"polygonize: bounds must be (lower (3,), upper (3,)), got {bounds!r}") from None
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
+            raise WarpblobError(f"polygonize: bounds must be finite with upper > lower, got {bounds!r}")
+    cells = np.maximum(np.ceil((hi - lo) / cellsize).astype(np.int64), 1)
+    blocks = cells // _kernels.BLOCK + 1  # the vertex layer at index `cells` needs a block too
+    g = _kernels.Grid()
+    g.origin = wp.vec3(*lo.astype(np.float32))
+    g.h = float(cellsize)
+    g.cells = wp.vec3i(*cells.astype(np.int32))
+    g.blocks = wp.vec3i(*blocks.astype(np.int32))
+    return g, cells, blocks
+
+
+def polygonize(
+    model,
+    *,
+    cellsize: float,
+    bounds=None,
+    device=None,
+    iso: float = ISO_VALUE,
+    tolerance: float = 1e-4,
+    max_memory: int | None = None,
+    threads: int | None = None,
+) -> SurfaceMesh:
+    """Polygonize ``model`` into a closed, coloured, shared-vertex triangle mesh.
+
+    The pipeline follows the thesis' GPU design (SPEC 2.1) on a block-sparse
+    grid: blocks of 8^3 cells are rejected when interval bounds of the field
+    prove them to lie wholly inside or outside (exact: no surface is ever
+    dropped, see :func:`warpblob.field.bound_balls`); the remaining blocks are
+    sampled, crossed edges counted and prefix-summed (``wp.utils.array_scan``),
+    one vertex is placed per crossed edge by a bracketed root search
+    (Illinois) to ``|F - iso| <= tolerance``, with its normal from the
+    analytic gradient and its colour, and faces come from a generated table
+    that resolves ambiguous faces by the asymptotic decider, so neighbouring
+    cells always agree (no cracks). Each stage is a Warp kernel with at most
+    one host sync (for the size of the next allocation).
+
+    Args:
+        model: a model or its :class:`~warpblob.LinearModel`.
+        cellsize: grid spacing, model units, > 0.
+        bounds: ``(lower, upper)`` box to polygonize (default: the model's box
+            plus half a cell, which closes the surface).
+        device: Warp device (default: Warp's default device).
+        iso: iso-value (default 0.5).
+        tolerance: largest ``|F(v) - iso|`` accepted for a vertex.
+        max_memory: bytes the call may allocate (default: what is available).
+        threads: CPU threads (default: all cores).
+
+    Returns:
+        :class:`~warpblob.mesh.SurfaceMesh`; ``stats`` holds
+        ``field_evaluations`` (point evaluations counted in the kernels: grid
+        samples plus root-search steps), ``interval_evaluations`` (block
+        bounds), ``triangles``, ``vertices``, ``blocks_total``,
+        ``blocks_rejected``, ``seconds`` per stage and ``fvept``.
+
+    Raises:
+        WarpblobError: bad arguments. ResourceError: the estimated memory
+            exceeds ``max_memory``.
+
+    Example:
+        >>> import warpblob as wb
+        >>> mesh = wb.polygonize(wb.scenes.peanut(), cellsize=0.1)
+        >>> mesh.is_closed_manifold()
+        True
+    """
+    try:
+        h = float(cellsize)
+    except (TypeError, ValueError):
+        raise WarpblobError(f"polygonize: cellsize must be a positive number, got {cellsize!r}") from None
+    if not (np.isfinite(h) and h > 0.0):
+        raise WarpblobError(f"polygonize: cellsize must be a positive number, got {cellsize!r}")
+    if not (np.isfinite(tolerance) and tolerance > 0.0):
+        raise WarpblobError(f"polygonize: tolerance must be positive, got {tolerance!r}")
+    dev = resolve_device(device)
+    lm = linearize(model)
+    limit = available_memory(dev) if max_memory is None else int(max_memory)
+    seconds = {}
+    stats = {"cellsize": h}
+    t0 = time.perf_counter()
+
+    def lap(name):
+        nonlocal t0
+        wp.synchronize_device(dev)
+        now = time.perf_counter()
+        seconds[name] = now - t0
+        t0 = now
+
+    grid = _grid(lm, h, bounds)
+    empty = SurfaceMesh(
+        np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
+    )
+    if grid is None:
+        empty.stats = {**stats, "triangles": 0, "vertices": 0, "field_evaluations": 0}
+        return empty
+    g, cells, blocks = grid
+    n_blocks = int(np.prod(blocks))
+    _check_memory("block classification", n_blocks * 16, limit)
+    if n_blocks > np.iinfo(np.int32).max // _kernels.SAMPLES:
+        raise ResourceError(f"polygonize: {n_blocks} blocks exceed the int32 index range; use a larger cellsize")
+    kernels = _kernel_set()
+    table, faces, edge_info = _device_tables(dev)
+    m = model_arrays(lm, dev)
+
+    # 1. block rejection by interval bounds
+    flags = wp.empty(n_blocks, dtype=wp.int32, device=dev)
+    launch(kernels["classify"], n_blocks, [m, g, float(iso)], [flags], dev, threads)
+    active = _compact(flags, dev, threads)
+    n_active = active.shape[0]
+    block_map = wp.full(n_blocks, -1, dtype=wp.int32, device=dev)
+    launch(_kernels.block_map_kernel, n_active, [active], [block_map], dev, threads)
+    lap("classify")
+    stats.update(blocks_total=n_blocks, blocks_rejected=n_blocks - n_active, interval_evaluations=n_blocks)
+
+    # 2. field at the vertices of active blocks
+    n_samples = n_active * _kernels.SAMPLES
+    n_cells = n_active * _kernels.CELLS
+    _check_memory("sampling", n_samples * 4 + n_cells * 4 * 7, limit)
+    samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
+    launch(kernels["sample"], n_samples, [m, g, active], [samples], dev, threads)
+    lap("sample")
+
+    # 3. crossed edges, cell configurations, counts and prefix sums
+    edge_masks = wp.empty(n_cells, dtype=wp.int32, device=dev)
+    vertex_counts = wp.empty(n_cells, dtype=wp.int32, device=dev)
+    entries = wp.empty(n_cells, dtype=wp.int32, device=dev)
+    triangle_counts = wp.empty(n_cells, dtype=wp.int32, device=dev)
+    centre_counts = wp.empty(n_cells, dtype=wp.int32, device=dev)
+    launch(
+        kernels["count"],
+        n_cells,
+        [g, float(iso), active, samples, table, faces],
+        [edge_masks, vertex_counts, entries, triangle_counts, centre_counts],
+        dev,
+        threads,
+    )
+    vertex_offsets, n_edge_vertices = _scan(vertex_counts)
+    triangle_offsets, n_triangles = _scan(triangle_counts)
+    centre_offsets, n_centres = _scan(centre_counts)
+    n_vertices = n_edge_vertices + n_centres
+    lap("count")
+
+    # 4. one vertex per crossed edge, on the surface (then loop centres)
+    _check_memory("output", n_vertices * 40 + n_triangles * 24, limit)
+    positions = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
+    normals = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
+    colors = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
+    evaluations = wp.empty(n_vertices, dtype=wp.int32, device=dev)
+    iterations = 16
+    launch(
+        kernels["vertex"],
+        n_cells,
+        [m, g, float(iso), float(tolerance), iterations, active, samples, edge_masks, vertex_offsets],
+        [positions, normals, colors, evaluations],
+        dev,
+        threads,
+    )
+    if n_centres:
+        launch(
+            kernels["centre"],
+            n_cells,
+            [m, g, float(iso), float(tolerance), iterations, active, block_map, entries, centre_counts, centre_offsets,
+             n_edge_vertices, table, edge_info, edge_masks, vertex_offsets],
+            [positions, normals, colors, evaluations],
+            dev,
+            threads,
+        )  # fmt: skip
+    lap("vertices")
+
+    # 5. faces from the table, no field evaluation
+    triangles = wp.empty(n_triangles, dtype=wp.vec3i, device=dev)
+    launch(
+        kernels["face"],
+        n_cells,
+        [g, active, block_map, entries, triangle_counts, triangle_offsets, centre_offsets, n_edge_vertices, table,
+         edge_info, edge_masks, vertex_offsets, positions],
+        [triangles],
+        dev,
+        threads,
+    )  # fmt: skip
+    # 6. drop zero-area triangles
+    keep = wp.empty(n_triangles, dtype=wp.int32, device=dev)
+    launch(kernels["degenerate"], n_triangles, [positions, triangles], [keep], dev, threads)
+    keep_offsets, n_kept = _scan(keep)
+    if n_kept < n_triangles:
+        kept = wp.empty(n_kept, dtype=wp.vec3i, device=dev)
+        launch(_kernels.compact_triangles_kernel, n_triangles, [triangles, keep, keep_offsets], [kept], dev, threads)
+        triangles = kept
+    lap("faces")
+
+    root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
+    field_evaluations = n_samples + root_steps
+    stats.update(
+        vertices=n_vertices,
+        centre_vertices=n_centres,
+        triangles=n_kept,
+        degenerate_removed=n_triangles - n_kept,
+        grid_evaluations=n_samples,
+        root_evaluations=root_steps,
+        field_evaluations=field_evaluations,
+        fvept=field_evaluations / max(n_kept, 1),
+        seconds=seconds,
+        total_seconds=sum(seconds.values()),
+    )
+    return SurfaceMesh(
+        positions.numpy().reshape(-1, 3),
+        triangles.numpy().reshape(-1, 3).astype(np.int32),
+        normals.numpy().reshape(-1, 3),
+        colors.numpy().reshape(-1, 3),
+        stats,
+    )
