@@ -21,6 +21,8 @@ from ._errors import ModelError, ResourceError, SceneError, WarpblobError
 from ._linearize import LinearModel, linearize
 from ._parallel import set_thread_count, thread_count
 from .field import color, evaluate, field, gradient
+from .mesh import SurfaceMesh
+from .polygonize import polygonize
 from .tree import (
     ISO_DISTANCE,
     ISO_VALUE,
@@ -96,6 +98,8 @@ __all__ = [
     "gradient",
     "color",
     "evaluate",
+    "polygonize",
+    "SurfaceMesh",
     "thread_count",
     "set_thread_count",
     "scenes",

@@ -538,6 +538,58 @@ def finalize_interval(kind: int, k: float, acc: vec7):
     return acc
 
 
+@wp.func
+def grid_cell_of(m: ModelArrays, gi: int, x: wp.vec3):
+    """Cell coordinates of ``x`` in grid ``gi`` (clamped into the grid)."""
+    c = wp.cw_mul(x - m.grid_lower[gi], m.grid_inv_cell[gi])
+    dims = m.grid_dims[gi]
+    return wp.vec3i(
+        wp.clamp(int(wp.floor(c[0])), 0, dims[0] - 1),
+        wp.clamp(int(wp.floor(c[1])), 0, dims[1] - 1),
+        wp.clamp(int(wp.floor(c[2])), 0, dims[2] - 1),
+    )
+
+
+@wp.func
+def next_ball_operand(m: ModelArrays, gi: int, q: wp.vec3, radius: float, cell: int, item: int):
+    """Next (cell, item, operand) of a wide operator for the ball (q, radius).
+
+    Walks the grid cells the ball's box overlaps (x fastest) and their items
+    from ``(cell, item)`` on; an operand listed in several of those cells is
+    returned only in the first of them (the componentwise max of the ball's
+    first cell and the operand's first cell), so sums count it once.
+    ``cell`` is a linear index within the grid; operand -1 when done.
+    """
+    dims = m.grid_dims[gi]
+    c0 = grid_cell_of(m, gi, q - wp.vec3(radius))
+    c1 = grid_cell_of(m, gi, q + wp.vec3(radius))
+    base = m.grid_base[gi]
+    cx = cell % dims[0]
+    cy = (cell // dims[0]) % dims[1]
+    cz = cell // (dims[0] * dims[1])
+    it = item
+    while cz <= c1[2]:
+        lin = (cz * dims[1] + cy) * dims[0] + cx
+        stop = m.cell_offsets[base + lin + 1]
+        if it < 0:
+            it = m.cell_offsets[base + lin]
+        while it < stop:
+            child = m.cell_items[it]
+            first = grid_cell_of(m, gi, m.lower[child])
+            if wp.max(first[0], c0[0]) == cx and wp.max(first[1], c0[1]) == cy and wp.max(first[2], c0[2]) == cz:
+                return wp.vec3i(lin, it + 1, child)
+            it += 1
+        it = -1
+        cx += 1
+        if cx > c1[0]:
+            cx = c0[0]
+            cy += 1
+            if cy > c1[1]:
+                cy = c0[1]
+                cz += 1
+    return wp.vec3i(0, 0, -1)
+
+
 def make_evaluate(prune: bool, interval: bool = False):
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
@@ -545,9 +597,9 @@ def make_evaluate(prune: bool, interval: bool = False):
     ``radius`` is ignored. Interval mode returns (F_min, F_max, 0...) over the
     ball of ``radius`` around ``p``: it always prunes (by ball-box overlap),
     treats a warp whose box meets the ball as unknown ([0, inf)), and visits
-    wide operators' operands by their boxes rather than a grid cell.
+    the operands of a wide operator listed in the grid cells the ball overlaps.
     """
-    use_grid = prune and not interval
+    use_grid = prune
 
     @wp.func
     def get_slot(sv: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
@@ -596,24 +648,29 @@ def make_evaluate(prune: bool, interval: bool = False):
                         q = warp_forward(m, i, q)
                         i = i + 1
                 elif wp.static(use_grid) and m.ref[i] >= 0:
-                    # wide sparse operator: visit the operands listed in q's grid cell
+                    # wide sparse operator: visit the operands listed in the grid
+                    # cell of q (point mode) or the cells the ball overlaps (interval)
                     gi = m.ref[i]
-                    cell = wp.cw_mul(q - m.grid_lower[gi], m.grid_inv_cell[gi])
-                    dims = m.grid_dims[gi]
-                    cx = wp.clamp(int(wp.floor(cell[0])), 0, dims[0] - 1)
-                    cy = wp.clamp(int(wp.floor(cell[1])), 0, dims[1] - 1)
-                    cz = wp.clamp(int(wp.floor(cell[2])), 0, dims[2] - 1)
-                    cidx = m.grid_base[gi] + (cz * dims[1] + cy) * dims[0] + cx
-                    cfirst = m.cell_offsets[cidx]
-                    clast = m.cell_offsets[cidx + 1]
-                    if cfirst < clast:
+                    first_op = wp.vec3i(0, 0, -1)
+                    if wp.static(interval):
+                        c0 = grid_cell_of(m, gi, q - wp.vec3(radius))
+                        dims = m.grid_dims[gi]
+                        first_op = next_ball_operand(m, gi, q, radius, (c0[2] * dims[1] + c0[1]) * dims[0] + c0[0], -1)
+                    else:
+                        cc = grid_cell_of(m, gi, q)
+                        dims = m.grid_dims[gi]
+                        cidx = m.grid_base[gi] + (cc[2] * dims[1] + cc[1]) * dims[0] + cc[0]
+                        cfirst = m.cell_offsets[cidx]
+                        if cfirst < m.cell_offsets[cidx + 1]:
+                            first_op = wp.vec3i(m.cell_offsets[cidx + 1], cfirst + 1, m.cell_items[cfirst])
+                    if first_op[2] >= 0:
                         sp += 1
                         sv[sp] = 0.0
                         sg[sp] = wp.vec3(0.0)
                         sc[sp] = wp.vec3(0.0)
-                        cursor[sp] = cfirst + 1
-                        stop[sp] = clast
-                        i = m.cell_items[cfirst]
+                        stop[sp] = first_op[0]
+                        cursor[sp] = first_op[1]
+                        i = first_op[2]
                     else:
                         r = vec7()
                         descending = False
@@ -648,7 +705,13 @@ def make_evaluate(prune: bool, interval: bool = False):
                     sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
                     nxt = int(-1)
                     if wide:
-                        if cursor[sp] < stop[sp]:
+                        if wp.static(interval):
+                            step = next_ball_operand(m, m.ref[par], q, radius, stop[sp], cursor[sp])
+                            if step[2] >= 0:
+                                stop[sp] = step[0]
+                                cursor[sp] = step[1]
+                                nxt = step[2]
+                        elif cursor[sp] < stop[sp]:
                             nxt = m.cell_items[cursor[sp]]
                             cursor[sp] += 1
                     else:

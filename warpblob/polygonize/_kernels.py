@@ -18,6 +18,9 @@ _SIDE = wp.constant(SIDE)
 _SAMPLES = wp.constant(SAMPLES)
 _CELLS = wp.constant(CELLS)
 _APEX = wp.constant(APEX)
+SUB_SIDE = BLOCK // 2  # sub-blocks of 2^3 cells per block side
+_SUB_SIDE = wp.constant(SUB_SIDE)
+_SUBS = wp.constant(SUB_SIDE * SUB_SIDE * SUB_SIDE)
 
 vec12i = wp.types.vector(length=MAX_LOOP, dtype=wp.int32)
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
@@ -70,9 +73,43 @@ def make_kernels():
         flags[b] = active
 
     @wp.kernel(enable_backward=False, module="unique")
+    def classify_subblocks_kernel(
+        m: ModelArrays, g: Grid, iso: float, active: wp.array(dtype=wp.int32), offset: int,
+        states: wp.array(dtype=wp.int32),
+    ):  # fmt: skip
+        """State of each 2^3-cell sub-block of the active blocks: 0 may hold
+        surface, 1 provably all inside, 2 provably all outside."""
+        tid = wp.tid() + offset
+        a = tid // _SUBS
+        sb = tid - a * _SUBS
+        c = block_coords(g, active[a])
+        si = sb % _SUB_SIDE
+        sj = (sb // _SUB_SIDE) % _SUB_SIDE
+        sk = sb // (_SUB_SIDE * _SUB_SIDE)
+        corner = wp.vec3(
+            float(c[0] * _BLOCK + 2 * si + 1), float(c[1] * _BLOCK + 2 * sj + 1), float(c[2] * _BLOCK + 2 * sk + 1)
+        )
+        r = bound(m, g.origin + g.h * corner, g.h * 1.7320509 * 1.0001)
+        state = int(0)
+        if r[0] >= iso:
+            state = 1
+        elif r[1] < iso:
+            state = 2
+        states[tid] = state
+
+    @wp.kernel(enable_backward=False, module="unique")
     def sample_blocks_kernel(
-        m: ModelArrays, g: Grid, active: wp.array(dtype=wp.int32), offset: int, samples: wp.array(dtype=wp.float32)
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        active: wp.array(dtype=wp.int32),
+        states: wp.array(dtype=wp.int32),
+        offset: int,
+        samples: wp.array(dtype=wp.float32),
+        evaluated: wp.array(dtype=wp.int32),
     ):
+        """Field at the block's vertices that touch a sub-block which may hold
+        surface; elsewhere a stand-in value on the proven side of ``iso``."""
         tid = wp.tid() + offset
         a = tid // _SAMPLES
         s = tid - a * _SAMPLES
@@ -80,8 +117,29 @@ def make_kernels():
         i = s % _SIDE
         j = (s // _SIDE) % _SIDE
         k = s // (_SIDE * _SIDE)
-        p = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
-        samples[tid] = value(m, p, 0.0)[0]
+        needed = bool(False)
+        proven = int(0)
+        for dk in range(2):
+            sk = (k - 1 + dk) // 2
+            if sk >= 0 and sk < _SUB_SIDE and (dk == 0 or sk != (k - 1) // 2):
+                for dj in range(2):
+                    sj = (j - 1 + dj) // 2
+                    if sj >= 0 and sj < _SUB_SIDE and (dj == 0 or sj != (j - 1) // 2):
+                        for di in range(2):
+                            si = (i - 1 + di) // 2
+                            if si >= 0 and si < _SUB_SIDE and (di == 0 or si != (i - 1) // 2):
+                                st = states[a * _SUBS + (sk * _SUB_SIDE + sj) * _SUB_SIDE + si]
+                                if st == 0:
+                                    needed = True
+                                else:
+                                    proven = st
+        if needed:
+            p = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
+            samples[tid] = value(m, p, 0.0)[0]
+            evaluated[tid] = 1
+        else:
+            samples[tid] = wp.where(proven == 1, iso + 0.5, iso - 0.5)
+            evaluated[tid] = 0
 
     @wp.kernel(enable_backward=False, module="unique")
     def count_kernel(
@@ -441,6 +499,7 @@ def make_kernels():
 
     return {
         "classify": classify_blocks_kernel,
+        "classify_sub": classify_subblocks_kernel,
         "sample": sample_blocks_kernel,
         "count": count_kernel,
         "vertex": vertex_kernel,

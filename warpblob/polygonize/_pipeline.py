@@ -205,14 +205,18 @@ def polygonize(
     block_map = wp.full(n_blocks, -1, dtype=wp.int32, device=dev)
     launch(_kernels.block_map_kernel, n_active, [active], [block_map], dev, threads)
     lap("classify")
-    stats.update(blocks_total=n_blocks, blocks_rejected=n_blocks - n_active, interval_evaluations=n_blocks)
+    stats.update(blocks_total=n_blocks, blocks_rejected=n_blocks - n_active)
 
     # 2. field at the vertices of active blocks
     n_samples = n_active * _kernels.SAMPLES
     n_cells = n_active * _kernels.CELLS
     _check_memory("sampling", n_samples * 4 + n_cells * 4 * 7, limit)
+    n_subs = n_active * _kernels.SUB_SIDE**3
+    states = wp.empty(n_subs, dtype=wp.int32, device=dev)
+    launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
-    launch(kernels["sample"], n_samples, [m, g, active], [samples], dev, threads)
+    evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
+    launch(kernels["sample"], n_samples, [m, g, float(iso), active, states], [samples, evaluated], dev, threads)
     lap("sample")
 
     # 3. crossed edges, cell configurations, counts and prefix sums
@@ -284,16 +288,20 @@ def polygonize(
     lap("faces")
 
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
-    field_evaluations = n_samples + root_steps
+    grid_evaluations = int(evaluated.numpy().sum()) if n_samples else 0
+    interval_evaluations = n_blocks + n_subs
+    field_evaluations = grid_evaluations + root_steps
     stats.update(
         vertices=n_vertices,
         centre_vertices=n_centres,
         triangles=n_kept,
         degenerate_removed=n_triangles - n_kept,
-        grid_evaluations=n_samples,
+        grid_evaluations=grid_evaluations,
         root_evaluations=root_steps,
         field_evaluations=field_evaluations,
+        interval_evaluations=interval_evaluations,
         fvept=field_evaluations / max(n_kept, 1),
+        fvept_with_intervals=(field_evaluations + interval_evaluations) / max(n_kept, 1),
         seconds=seconds,
         total_seconds=sum(seconds.values()),
     )

@@ -1,0 +1,174 @@
+"""Polygonization benchmark: model in, mesh out, warpblob vs Warp's extractors and VTK.
+
+Run:  python benchmarks/bench_polygonize.py [--models tumor,mug,medusa,towers] [--cellsizes 0.14,0.1,0.05]
+
+Peers, all fed the same model through warpblob's own field kernel on the same
+grid (origin at the model box minus half a cell):
+
+* ``sparse_mc``: ``warp.geometry.sparse_marching_cubes`` with the field as a
+  batched Warp callable and the Lipschitz bound below;
+* ``dense_warp_mc``: the field on the dense grid, then Warp's
+  ``IsoSurfaceMarchingCubes``;
+* ``dense_vtk_fe``: the same dense field, then VTK flying edges (PyVista
+  ``contour`` on ``ImageData``).
+
+Lipschitz bound for sparse MC (it must bound |grad F| everywhere): a Wyvill
+primitive has ``|dF/dx| <= max_x 6x(1-x^2)^2 / R = 1.7173 / R`` times the
+stretch of its inverse transform; max, min and ``1 - F`` keep the bound of
+their operands, a sum (blend; and a smooth blend, whose gradient is a
+sub-unit-weighted sum) adds them. For wide operators only operands whose
+supports overlap matter, so the sum is taken per grid cell of the operator
+and the largest cell sum is used. Models with warps are not benchmarked here.
+
+Timings are warm (every kernel compiled and run once first), best of three;
+dense peers include the dense field evaluation. Writes
+benchmarks/results/bench_polygonize.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+import warp as wp
+import warp.geometry  # noqa: F401  (peers)
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import warpblob as wb  # noqa: E402
+from _common import best_of, machine, table, write_json  # noqa: E402
+from warpblob.tree import _kinds  # noqa: E402
+
+THESIS_MEDUSA_MS = {0.01: 5220, 0.03: 3441, 0.05: 1071, 0.10: 264, 0.14: 108}  # one core, AVX (SPEC 2.4)
+WYVILL_SLOPE = 6.0 / 5.0**0.5 * (4.0 / 5.0) ** 2  # max of 6x(1-x^2)^2 at x = 1/sqrt(5)
+
+
+def lipschitz_bound(lm) -> float:
+    """Upper bound of |grad F| over space for a linearized model without warps."""
+    n = lm.node_count
+    bound = np.zeros(n)
+    for i in range(n - 1, -1, -1):
+        k = lm.kind[i]
+        if k < _kinds.PRIMITIVE_KIND_END:
+            r = lm.ref[i]
+            bound[i] = WYVILL_SLOPE / lm.radius[r] * lm.stretch[r]
+            continue
+        if k in _kinds.WARP_KINDS:
+            raise ValueError("models with warps have no simple Lipschitz bound")
+        kids = np.nonzero(lm.parent == i)[0]
+        if k in (_kinds.BLEND, _kinds.SMOOTH_BLEND):
+            if lm.ref[i] >= 0:  # wide: largest sum over one grid cell
+                g = lm.ref[i]
+                cells = np.prod(lm.grid_dims[g])
+                offs = lm.cell_offsets[lm.grid_base[g] : lm.grid_base[g] + cells + 1]
+                csum = np.concatenate([[0.0], np.cumsum(bound[lm.cell_items[offs[0] : offs[-1]]])])
+                bound[i] = float(np.max(csum[offs[1:] - offs[0]] - csum[offs[:-1] - offs[0]]))
+            else:
+                bound[i] = bound[kids].sum()
+        else:
+            bound[i] = bound[kids].max()
+    return float(bound[0])
+
+
+def grid_of(lm, h):
+    lo, hi = lm.bounds
+    lo = lo - 0.5 * h
+    cells = np.maximum(np.ceil((hi + 0.5 * h - lo) / h).astype(int), 1)
+    return lo, cells + 1  # nodes per axis
+
+
+def dense_field(lm, lo, nodes, h):
+    xs = [lo[a] + h * np.arange(nodes[a], dtype=np.float64) for a in range(3)]
+    pts = np.stack(np.meshgrid(*xs, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.float32)
+    return wb.field(lm, pts).reshape(tuple(nodes))
+
+
+def run_warpblob(lm, h):
+    mesh = wb.polygonize(lm, cellsize=h)
+    return mesh.face_count, mesh.stats["field_evaluations"] + mesh.stats["interval_evaluations"]
+
+
+def run_sparse(lm, h, lip):
+    lo, nodes = grid_of(lm, h)
+    hi = lo + h * (nodes - 1)
+    count = [0]
+
+    def fn(points):
+        count[0] += points.shape[0]
+        return wb.field(lm, points)
+
+    verts, faces = wp.geometry.sparse_marching_cubes(
+        fn, int(nodes[0]), int(nodes[1]), int(nodes[2]), lower=tuple(lo), upper=tuple(hi), threshold=0.5,
+        lipschitz_bound=lip,
+    )  # fmt: skip
+    return faces.shape[0] // 3, count[0]
+
+
+def run_dense_warp(lm, h):
+    lo, nodes = grid_of(lm, h)
+    f = dense_field(lm, lo, nodes, h)
+    hi = lo + h * (nodes - 1)
+    mc = wp.geometry.IsoSurfaceMarchingCubes(int(nodes[0]), int(nodes[1]), int(nodes[2]), tuple(lo), tuple(hi))
+    mc.surface(wp.array(f, dtype=wp.float32), 0.5)
+    return mc.indices.shape[0] // 3, int(np.prod(nodes))
+
+
+def run_dense_vtk(lm, h):
+    import pyvista as pv
+
+    lo, nodes = grid_of(lm, h)
+    f = dense_field(lm, lo, nodes, h)
+    img = pv.ImageData(dimensions=tuple(int(n) for n in nodes), spacing=(h, h, h), origin=tuple(lo))
+    img.point_data["F"] = f.ravel(order="F")
+    surf = img.contour([0.5], scalars="F", method="flying_edges")
+    return surf.n_cells, int(np.prod(nodes))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", default="tumor,mug,medusa,towers")
+    ap.add_argument("--cellsizes", default="0.14,0.1,0.05")
+    ap.add_argument("--skip-dense-above", type=float, default=4e7, help="skip dense peers above this many nodes")
+    args = ap.parse_args(argv)
+    cellsizes = [float(c) for c in args.cellsizes.split(",")]
+    rows = []
+    print("polygonization benchmark: model in, mesh out, warm, best of 3, seconds")
+    for name in args.models.split(","):
+        lm = wb.linearize(wb.scenes.ALL[name]())
+        lip = lipschitz_bound(lm)
+        for h in cellsizes:
+            _, nodes = grid_of(lm, h)
+            dense_ok = np.prod(nodes) <= args.skip_dense_above
+            row = {"model": name, "cellsize": h, "lipschitz": lip, "grid_nodes": int(np.prod(nodes))}
+            peers = {
+                "warpblob": lambda: run_warpblob(lm, h),
+                "sparse_mc": lambda: run_sparse(lm, h, lip),
+                "dense_warp_mc": (lambda: run_dense_warp(lm, h)) if dense_ok else None,
+                "dense_vtk_fe": (lambda: run_dense_vtk(lm, h)) if dense_ok else None,
+            }
+            for key, fn in peers.items():
+                if fn is None:
+                    continue
+                tris, evals = fn()  # warm up (compilation) and counts
+                row[f"{key}_s"] = best_of(fn)
+                row[f"{key}_tris"] = tris
+                row[f"{key}_fvept"] = evals / max(tris, 1)
+            fastest_peer = min(row[f"{k}_s"] for k in ("sparse_mc", "dense_warp_mc", "dense_vtk_fe") if f"{k}_s" in row)
+            row["speedup_vs_fastest_peer"] = fastest_peer / row["warpblob_s"]
+            if name == "medusa" and h in THESIS_MEDUSA_MS:
+                row["thesis_1core_avx_s"] = THESIS_MEDUSA_MS[h] / 1000.0
+            rows.append(row)
+            print(f"  {name} h={h}: warpblob {row['warpblob_s']:.3f} s, x{row['speedup_vs_fastest_peer']:.1f} vs fastest peer", flush=True)
+    cols = [("model", "model", "s"), ("cellsize", "h", ".2f")]
+    for key, label in (("warpblob", "wb"), ("sparse_mc", "sparseMC"), ("dense_warp_mc", "warpMC"), ("dense_vtk_fe", "vtkFE")):
+        cols += [(f"{key}_s", f"{label} s", ".3f"), (f"{key}_fvept", f"{label} FVEPT", ".1f")]
+    cols += [("warpblob_tris", "wb tris", "d"), ("speedup_vs_fastest_peer", "speedup", ".1f"), ("thesis_1core_avx_s", "thesis s", ".3f")]
+    print(table(rows, cols))
+    path = write_json("bench_polygonize.json", {"benchmark": "polygonize", "warm": True, "machine": machine(), "rows": rows})
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
