@@ -47,7 +47,8 @@ SLOTS = 16
 WARP_NESTING = 8
 #: operand count from which a sparse operator gets a grid
 WIDE = 8
-_GRID_MAX_CELLS = 1 << 18
+_GRID_MAX_CELLS = 1 << 20
+_GRID_CELL_FRACTION = 0.25
 _GRID_MAX_ITEMS = 1 << 22
 #: operators whose nested copies merge into one (max and min exactly; the sum up to rounding)
 _ASSOCIATIVE = (_kinds.BLEND, _kinds.UNION, _kinds.INTERSECTION)
@@ -265,7 +266,7 @@ def _build_grid(op_box, child_boxes, child_index):
     sizes = child_boxes[:, 1] - child_boxes[:, 0]
     # cells of half the typical operand size, per axis: a point then sees few
     # more operands than those whose boxes really hold it, at ~3.4x the items
-    cell = np.maximum(0.5 * np.median(sizes, axis=0), 1e-9)
+    cell = np.maximum(_GRID_CELL_FRACTION * np.median(sizes, axis=0), 1e-9)
     dims = np.clip(np.ceil(extent / cell), 1, 256).astype(np.int64)
     while np.prod(dims) > _GRID_MAX_CELLS or _grid_items(child_boxes, lo, dims / extent, dims) > _GRID_MAX_ITEMS:
         dims = np.maximum(dims // 2, 1)

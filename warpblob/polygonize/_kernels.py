@@ -262,34 +262,46 @@ def make_kernels():
                     f1 = samples[base + sample_index(i, j + 1, k)] - iso
                 else:
                     f1 = samples[base + sample_index(i, j, k + 1)] - iso
-                # Illinois (modified regula falsi) on the bracket [0, 1] of the edge
+                # Newton along the edge with the analytic derivative, safeguarded by
+                # the bracket [ta, tb] (Press et al.'s rtsafe): a step that leaves the
+                # bracket or fails to halve the previous one falls back to bisection
                 ta = float(0.0)
                 tb = float(1.0)
                 fa = f0
-                fb = f1
-                side = int(0)
-                t = fa / (fa - fb)
+                t = fa / (fa - f1)
+                dx_old = float(1.0)
                 r = vec7()
+                best = vec7()
+                best_t = t
+                best_f = float(1.0e30)
                 count = int(0)
                 for _it in range(max_iterations):
                     r = value(m, p0 + t * step, 0.0)
                     count += 1
                     ft = r[0] - iso
+                    if wp.abs(ft) < best_f:
+                        best_f = wp.abs(ft)
+                        best = r
+                        best_t = t
                     if wp.abs(ft) <= tolerance:
                         break
                     if (ft >= 0.0) == (fa >= 0.0):
                         ta = t
                         fa = ft
-                        if side == -1:
-                            fb = 0.5 * fb
-                        side = -1
                     else:
                         tb = t
-                        fb = ft
-                        if side == 1:
-                            fa = 0.5 * fa
-                        side = 1
-                    t = (ta * fb - tb * fa) / (fb - fa)
+                    slope = r[1] * step[0] + r[2] * step[1] + r[3] * step[2]
+                    tn = float(-1.0)
+                    if slope != 0.0:
+                        tn = t - ft / slope
+                    if tn > ta and tn < tb and wp.abs(tn - t) < 0.5 * dx_old:
+                        dx_old = wp.abs(tn - t)
+                        t = tn
+                    else:
+                        dx_old = 0.5 * (tb - ta)
+                        t = 0.5 * (ta + tb)
+                r = best
+                t = best_t
                 grad = wp.vec3(r[1], r[2], r[3])
                 positions[out] = p0 + t * step
                 normals[out] = -wp.normalize(grad)
