@@ -78,16 +78,52 @@ def test_field_bad_device(tmp_path):
     assert "cuda:7" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_demo_writes_pictures_and_summary(tmp_path):
+def test_demo_writes_stage_pictures_and_summary(tmp_path):
     out = tmp_path / "out"
-    r = run_cli("demo", "--out", str(out), "--scene", "peanut", "--resolution", "64")
+    r = run_cli("demo", "--out", str(out), "--scene", "peanut", "--resolution", "64", "--cellsize", "0.1")
     assert r.returncode == 0, r.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["peanut"]["primitives"] == 2
     assert 0.0 < summary["peanut"]["inside_fraction"] < 1.0
-    png = (out / "peanut_slices.png").read_bytes()
-    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+    assert summary["peanut"]["polygonize"]["closed_manifold"] is True
+    for name in ("peanut_slices.png", "peanut_mesh.png"):
+        png = (out / name).read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+    import warpblob.usd
+
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(out / "warpblob_demo.usdc"))
+    assert UsdGeom.GetStageUpAxis(stage) == "Z" and stage.GetDefaultPrim().GetName() == "Demo"
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Demo/peanut/surface"))
+    assert len(mesh.GetFaceVertexIndicesAttr().Get()) == 3 * summary["peanut"]["polygonize"]["triangles"]
     assert not any(".tmp" in p.name for p in out.iterdir())
+
+
+def test_polygonize_writes_a_usd_mesh(tmp_path):
+    import warpblob.usd
+
+    out = tmp_path / "tumor.usda"
+    r = run_cli("polygonize", "tumor", "--cellsize", "0.1", "--out", str(out), "--png", str(tmp_path / "t.png"))
+    assert r.returncode == 0, r.stderr
+    mesh = wb.usd.load_mesh(out)
+    direct = wb.polygonize(wb.scenes.tumor(), cellsize=0.1)
+    assert mesh.face_count == direct.face_count and mesh.is_closed_manifold()
+    assert (tmp_path / "t.png").stat().st_size > 5000
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("--cellsize", "-1", "--out", "m.usda"), "cellsize"),
+        (("--cellsize", "0.1", "--out", "m.obj"), "m.obj"),
+        (("--cellsize", "0.1", "--out", "no/such/dir/m.usda"), "does not exist"),
+    ],
+)
+def test_polygonize_errors(tmp_path, args, words):
+    r = run_cli("polygonize", "tumor", *args, cwd=tmp_path)
+    assert r.returncode == 1 and "Traceback" not in r.stderr and words in r.stderr
+    assert not list(tmp_path.glob("*.usda"))
 
 
 def test_info_and_field_read_usd_scenes(tmp_path):

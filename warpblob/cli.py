@@ -1,4 +1,4 @@
-"""The ``warpblob`` command line: ``demo``, ``info`` and ``field``."""
+"""The ``warpblob`` command line: ``demo``, ``info``, ``field`` and ``polygonize``."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from . import __version__
 from ._errors import WarpblobError
 
 __all__ = ["main"]
@@ -86,16 +87,22 @@ def cmd_field(args) -> int:
     return 0
 
 
+# demo cell sizes: fine enough to look right, a fraction of a second each
+_DEMO_CELLSIZE = {"towers": 0.1, "medusa": 0.05, "head": 0.06}
+
+
 def cmd_demo(args) -> int:
     from . import scenes
     from ._progress import progress
+    from ._render import render_mesh
     from ._slices import save_slices
     from .field import field
+    from .polygonize import polygonize
 
     os.makedirs(args.out, exist_ok=True)
     names = list(scenes.ALL) if args.scene == "all" else [args.scene]
     rng = np.random.default_rng(0)
-    summary = {}
+    summary, meshes = {}, {}
     for name in progress(names, desc="demo"):
         model = _load(name)
         info = _info(model)
@@ -107,25 +114,86 @@ def cmd_demo(args) -> int:
         seconds = time.perf_counter() - t0
         info["points_per_second"] = round(len(pts) / seconds)
         info["inside_fraction"] = round(float(np.mean(values >= 0.5)), 4)
-        picture = os.path.join(args.out, f"{name}_slices.png")
-        save_slices(model, picture, name=name, resolution=args.resolution, device=args.device)
-        info["picture"] = os.path.basename(picture)
+        save_slices(model, os.path.join(args.out, f"{name}_slices.png"), name=name, resolution=args.resolution, device=args.device)
+        h = args.cellsize or _DEMO_CELLSIZE.get(name, 0.05)
+        t0 = time.perf_counter()
+        mesh = polygonize(model, cellsize=h, device=args.device)
+        info["polygonize"] = {
+            "cellsize": h,
+            "seconds": round(time.perf_counter() - t0, 4),
+            "triangles": mesh.face_count,
+            "vertices": mesh.vertex_count,
+            "closed_manifold": mesh.is_closed_manifold(),
+            "area": round(mesh.area(), 5),
+            "volume": round(mesh.volume(), 5),
+        }
+        render_mesh(mesh, os.path.join(args.out, f"{name}_mesh.png"), title=f"{name}: {mesh.face_count} triangles, h = {h}")
+        info["pictures"] = [f"{name}_slices.png", f"{name}_mesh.png"]
         summary[name] = info
+        meshes[name] = mesh
+    stage_path = _write_demo_stage(meshes, os.path.join(args.out, "warpblob_demo.usdc"))
     _write_text(os.path.join(args.out, "summary.json"), json.dumps(summary, indent=2) + "\n")
-    lines = [f"{'model':<12}{'prims':>7}{'ops':>7}{'depth':>6}{'Mpts/s':>9}  picture"]
+    lines = [f"{'model':<12}{'prims':>7}{'ops':>7}{'depth':>6}{'Mpts/s':>9}{'tris':>10}{'mesh s':>9}  closed"]
     for name, info in summary.items():
+        poly = info["polygonize"]
         lines.append(
             f"{name:<12}{info['primitives']:>7}{info['operators']:>7}{info['depth']:>6}"
-            f"{info['points_per_second'] / 1e6:>9.2f}  {info['picture']}"
+            f"{info['points_per_second'] / 1e6:>9.2f}{poly['triangles']:>10}{poly['seconds']:>9.3f}  {poly['closed_manifold']}"
         )
     _write_text(os.path.join(args.out, "summary.txt"), "\n".join(lines) + "\n")
     print("\n".join(lines))
-    print(f"wrote {len(summary)} pictures, summary.json and summary.txt to {args.out}")
+    print(f"wrote {stage_path}, {2 * len(summary)} pictures, summary.json and summary.txt to {args.out}")
+    return 0
+
+
+def _write_demo_stage(meshes: dict, path: str) -> str:
+    """One USD stage holding every demo mesh, laid out on a grid so they do not overlap."""
+    import pathlib
+
+    from pxr import UsdGeom
+
+    from .io.usd import author_mesh, export_atomically, new_stage
+
+    stage = new_stage(default_prim="Demo")
+    columns = 3
+    pitch = 1.2 * max((np.ptp(m.vertices, axis=0)[:2].max() for m in meshes.values() if m.vertex_count), default=1.0)
+    for k, (name, mesh) in enumerate(meshes.items()):
+        xform = UsdGeom.Xform.Define(stage, f"/Demo/{name}")
+        center = mesh.vertices.mean(axis=0) if mesh.vertex_count else np.zeros(3)
+        offset = np.array([(k % columns) * pitch, -(k // columns) * pitch, 0.0]) - np.array([center[0], center[1], 0.0])
+        xform.AddTranslateOp().Set(tuple(float(x) for x in offset))
+        author_mesh(stage, f"/Demo/{name}/surface", mesh)
+    return str(export_atomically(stage.GetRootLayer(), pathlib.Path(path), "demo"))
+
+
+def cmd_polygonize(args) -> int:
+    from .io.usd import save_mesh
+    from .polygonize import polygonize
+
+    model = _load(args.scene)
+    if not args.out.lower().endswith(_USD_SUFFIXES[:3]):
+        raise WarpblobError(f"--out must be a .usda, .usdc or .usd file, got {args.out!r}")
+    mesh = polygonize(model, cellsize=args.cellsize, device=args.device)
+    try:
+        save_mesh(mesh, args.out)
+    except (OSError, ValueError) as exc:
+        raise WarpblobError(str(exc)) from None
+    s = mesh.stats
+    print(
+        f"{mesh.face_count} triangles, {mesh.vertex_count} vertices, closed 2-manifold: {mesh.is_closed_manifold()}, "
+        f"{s.get('total_seconds', 0.0):.3f} s, {s.get('field_evaluations', 0)} field evaluations; wrote {args.out}"
+    )
+    if args.png:
+        from ._render import render_mesh
+
+        render_mesh(mesh, args.png, title=f"{args.scene}: {mesh.face_count} triangles")
+        print(f"wrote {args.png}")
     return 0
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="warpblob", description="BlobTree modelling of soft tissue on NVIDIA Warp.")
+    p.add_argument("--version", action="version", version=f"warpblob {__version__}")
     p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: Warp's default)")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -133,7 +201,15 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--scene", default="all", help="one built-in scene, or all (default)")
     d.add_argument("--resolution", type=int, default=256, help="pixels per slice side (default 256)")
+    d.add_argument("--cellsize", type=float, default=None, help="polygonization cell size (default: per model)")
     d.set_defaults(func=cmd_demo)
+
+    pg = sub.add_parser("polygonize", help="polygonize a scene into a watertight coloured UsdGeom.Mesh")
+    pg.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")
+    pg.add_argument("--cellsize", type=float, required=True, help="grid cell size, model units")
+    pg.add_argument("--out", required=True, help="output .usda/.usdc/.usd file")
+    pg.add_argument("--png", default=None, help="also render a picture to this PNG file")
+    pg.set_defaults(func=cmd_polygonize)
 
     i = sub.add_parser("info", help="counts, depth, box and bytes of a scene's linearized form")
     i.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")

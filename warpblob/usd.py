@@ -1,4 +1,4 @@
-"""BlobTree models in USD files: ``warpblob.usd.save_model`` and ``load_model``.
+"""USD files: BlobTree models (``save_model``, ``load_model``) and surface meshes (``save_mesh``, ``load_mesh``).
 
 ``import warpblob.usd`` loads Pixar's ``pxr``; ``import warpblob`` does not.
 The file format is described in ``docs/usd_format.md``.
@@ -12,6 +12,6 @@ Example:
     10
 """
 
-from .io.usd import FORMAT_VERSION, METERS_PER_UNIT, load_model, save_model
+from .io.usd import FORMAT_VERSION, METERS_PER_UNIT, load_mesh, load_model, save_mesh, save_model
 
-__all__ = ["save_model", "load_model", "FORMAT_VERSION", "METERS_PER_UNIT"]
+__all__ = ["save_model", "load_model", "save_mesh", "load_mesh", "FORMAT_VERSION", "METERS_PER_UNIT"]

@@ -1,0 +1,206 @@
+"""Polygonization: watertight, manifold, on the surface, and against a dense reference."""
+
+import numpy as np
+import pytest
+from reference import reference_evaluate
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+import warpblob as wb
+from warpblob.polygonize import _tables
+
+R = 1.0
+# head's layers are 0.04 apart: resolving them (and so comparing topology with
+# another extractor) needs h < 0.02, a 300^3 dense grid; it is checked for
+# watertightness below
+SMALL_MODELS = ["peanut", "tumor", "eggshell", "cake", "three_slabs", "mug"]
+
+
+def components(vertices, faces):
+    n = len(vertices)
+    e = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[0]
+
+
+def grid_like_polygonize(model, h):
+    """The grid polygonize uses by default: the model box plus half a cell."""
+    lo, hi = model.bounds()
+    lo = (lo - 0.5 * h).astype(np.float32).astype(np.float64)
+    cells = np.maximum(np.ceil((hi + 0.5 * h - lo) / h).astype(int), 1)
+    axes = [lo[a] + h * np.arange(cells[a] + 1) for a in range(3)]
+    return lo, axes
+
+
+def dense_reference_mesh(model, h):
+    from skimage.measure import marching_cubes
+
+    lo, axes = grid_like_polygonize(model, h)
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    f = reference_evaluate(model, pts)[0].reshape([len(a) for a in axes])
+    verts, faces, _, _ = marching_cubes(f, level=0.5, spacing=(h, h, h))
+    return verts + lo, faces
+
+
+def assert_closed_outward(mesh, model):
+    assert mesh.face_count > 0
+    assert mesh.is_closed_manifold(), "mesh is not a closed, consistently oriented 2-manifold"
+    assert mesh.volume() > 0.0, "faces are oriented inwards"
+    err = np.abs(wb.field(model, mesh.vertices) - 0.5)
+    assert err.max() <= 1e-4, f"vertex off the surface by {err.max():.3g} in F"
+    v = mesh.vertices
+    fn = np.cross(v[mesh.faces[:, 1]] - v[mesh.faces[:, 0]], v[mesh.faces[:, 2]] - v[mesh.faces[:, 0]])
+    assert np.all(np.linalg.norm(fn, axis=1) > 0.0), "zero-area triangle"
+
+
+def test_lone_point_is_a_sphere_of_radius_04541R(device):
+    model = wb.Point((0.1, -0.2, 0.3), R)
+    mesh = wb.polygonize(model, cellsize=R / 20, device=device)
+    r = wb.ISO_DISTANCE * R
+    assert abs(mesh.area() / (4 * np.pi * r * r) - 1) < 0.01
+    assert abs(mesh.volume() / (4 / 3 * np.pi * r**3) - 1) < 0.01
+    d = np.linalg.norm(mesh.vertices - np.array([0.1, -0.2, 0.3]), axis=1)
+    assert np.all(np.abs(d - r) < 1e-3)
+    assert_closed_outward(mesh, model)
+    stats = mesh.stats
+    assert stats["triangles"] == mesh.face_count and stats["vertices"] == mesh.vertex_count
+    assert stats["blocks_rejected"] > 0 and stats["field_evaluations"] > 0
+    assert set(stats["seconds"]) >= {"classify", "sample", "count", "vertices", "faces"}
+
+
+@pytest.mark.parametrize("name", list(wb.scenes.ALL))
+def test_reference_models_are_watertight_and_outward(name):
+    model = wb.scenes.ALL[name]()
+    h = 0.14 if name in ("towers", "medusa") else 0.08
+    mesh = wb.polygonize(model, cellsize=h)
+    assert_closed_outward(mesh, model)
+
+
+@pytest.mark.parametrize("name", SMALL_MODELS)
+def test_matches_dense_reference(name):
+    model = wb.scenes.ALL[name]()
+    h = 0.1
+    mesh = wb.polygonize(model, cellsize=h)
+    ref_v, ref_f = dense_reference_mesh(model, h)
+    assert components(mesh.vertices, mesh.faces) == components(ref_v, ref_f)
+    d1 = cKDTree(ref_v).query(mesh.vertices)[0].max()
+    d2 = cKDTree(mesh.vertices).query(ref_v)[0].max()
+    assert max(d1, d2) < h, f"Hausdorff distance {max(d1, d2):.3g} >= cellsize {h}"
+
+
+def thin_and_tiny():
+    """A thin plate, a hollow shell whose inner wall is a Difference, and tiny separate blobs."""
+    h = 0.05
+    plate = wb.Disc((0, 0, 0), (0, 0, 1), 1.0, 0.08)  # about 1.5 cells thick
+    shell = wb.Point((2.5, 0, 0), 1.2) - wb.Point((2.5, 0, 0), 0.9)  # wall 0.136 thick, under 3 cells
+    blobs = [wb.Point((x, 1.6, 0.0), 0.12) for x in np.linspace(-1, 1, 6)]  # ~2 cells across
+    return wb.Union(plate, shell, *blobs), h
+
+
+def test_thin_features_and_tiny_blobs_match_dense_reference():
+    model, h = thin_and_tiny()
+    mesh = wb.polygonize(model, cellsize=h)
+    ref_v, ref_f = dense_reference_mesh(model, h)
+    n = components(mesh.vertices, mesh.faces)
+    assert n == components(ref_v, ref_f)
+    assert n >= 1 + 2 + 6  # plate, outer and inner shell walls, six blobs
+    d1 = cKDTree(ref_v).query(mesh.vertices)[0].max()
+    d2 = cKDTree(mesh.vertices).query(ref_v)[0].max()
+    assert max(d1, d2) < h
+    assert_closed_outward(mesh, model)
+
+
+def test_many_ambiguous_cells_stay_manifold():
+    # blobs about one cell wide put many cells in ambiguous configurations
+    rng = np.random.default_rng(4)
+    h = 0.1
+    model = wb.Blend(*[wb.Point(rng.uniform(-1, 1, 3), rng.uniform(0.18, 0.3)) for _ in range(300)])
+    mesh = wb.polygonize(model, cellsize=h)
+    assert_closed_outward(mesh, model)
+    assert mesh.stats["centre_vertices"] >= 0
+
+
+def test_normals_follow_the_reference_gradient():
+    model = wb.scenes.tumor()
+    mesh = wb.polygonize(model, cellsize=0.08)
+    _, grad, colors = reference_evaluate(model, mesh.vertices.astype(np.float64))
+    ref = -grad / np.linalg.norm(grad, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", ref, mesh.normals)
+    assert cos.min() > 1 - 1e-4
+    np.testing.assert_allclose(mesh.colors, colors, atol=1e-4)
+
+
+def test_one_and_two_threads_give_identical_meshes():
+    model = wb.scenes.mug()
+    a = wb.polygonize(model, cellsize=0.06, threads=1)
+    b = wb.polygonize(model, cellsize=0.06, threads=2)
+    for key in ("vertices", "faces", "normals", "colors"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key
+
+
+def test_user_bounds_clip_the_surface():
+    model = wb.Point((0, 0, 0), R)
+    mesh = wb.polygonize(model, cellsize=0.05, bounds=((-1, -1, 0), (1, 1, 1)))
+    assert mesh.face_count > 0
+    assert mesh.vertices[:, 2].min() >= -1e-6
+    _, counts = mesh.edge_face_counts()
+    assert np.any(counts == 1)  # open along the cut
+    empty = wb.polygonize(model, cellsize=0.05, bounds=((5, 5, 5), (6, 6, 6)))
+    assert empty.face_count == 0 and empty.vertex_count == 0
+
+
+def test_resource_error_names_the_estimate():
+    with pytest.raises(wb.ResourceError, match="MiB"):
+        wb.polygonize(wb.scenes.tumor(), cellsize=0.02, max_memory=1 << 16)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), "x"])
+def test_bad_cellsize(bad):
+    with pytest.raises(wb.WarpblobError, match="cellsize"):
+        wb.polygonize(wb.scenes.tumor(), cellsize=bad)
+
+
+def test_bad_bounds():
+    with pytest.raises(wb.WarpblobError, match="bounds"):
+        wb.polygonize(wb.scenes.tumor(), cellsize=0.1, bounds=((0, 0, 0), (0, 1, 1)))
+
+
+def test_loop_table_is_consistent():
+    """Every face segment of the generated table is shared, reversed, by the neighbouring cell."""
+    table = _tables.build_loop_table()
+    rng = np.random.default_rng(0)
+    face_pairs = [(1, 0), (3, 2), (5, 4)]  # +x of a cell against -x of its +x neighbour, etc.
+    for _ in range(3000):
+        values = rng.normal(size=12).reshape(3, 2, 2)  # two cells sharing the middle face along x
+        cfg_a = sum(1 << c for c in range(8) if values[c & 1, (c >> 1) & 1, (c >> 2) & 1] >= 0)
+        cfg_b = sum(1 << c for c in range(8) if values[1 + (c & 1), (c >> 1) & 1, (c >> 2) & 1] >= 0)
+        shared = values[1]
+        s = [shared[0, 0], shared[1, 0], shared[1, 1], shared[0, 1]]  # (y, z) cycle
+        joined = (s[0] >= 0) == (s[2] >= 0) and (s[0] >= 0) != (s[1] >= 0)
+        inside_pair = s[0] * s[2] if s[0] >= 0 else s[1] * s[3]
+        outside_pair = s[1] * s[3] if s[0] >= 0 else s[0] * s[2]
+        bit = int(joined and inside_pair >= outside_pair)
+        row_a = table[cfg_a * 64 + (bit << face_pairs[0][0])]
+        row_b = table[cfg_b * 64 + (bit << face_pairs[0][1])]
+        seg_a = _face_segments(row_a, face=1)
+        seg_b = _face_segments(row_b, face=0)
+        assert sorted(seg_a) == sorted((b, a) for a, b in seg_b)
+
+
+def _face_segments(row, face):
+    """Directed segments of a row's loops lying on ``face``, as pairs of (axis, corner-offset) edge ids."""
+    corners = _tables.FACES[face][2]
+    on_face = {e for e, (a, b) in enumerate(_tables.EDGE_CORNERS) if a in corners and b in corners}
+    axis = _tables.FACES[face][0]
+    segs, first = [], 0
+    for lp in range(row[1]):
+        n = row[2 + lp]
+        loop = row[2 + _tables.MAX_LOOPS + first : 2 + _tables.MAX_LOOPS + first + n]
+        first += n
+        for t in range(n):
+            a, b = loop[t], loop[(t + 1) % n]
+            if a in on_face and b in on_face:
+                # name the edge by its axis and its origin with the face axis dropped
+                segs.append(tuple((int(_tables.EDGE_AXIS[e]), *np.delete(_tables.EDGE_ORIGIN[e], axis)) for e in (a, b)))
+    return segs
