@@ -45,6 +45,12 @@ def block_coords(g: Grid, b: int):
 
 
 @wp.func
+def local_cell(l: int):
+    """Block-local (i, j, k) of cell (or owned vertex) ``l`` in [0, 512)."""
+    return wp.vec3i(l % _BLOCK, (l // _BLOCK) % _BLOCK, l // (_BLOCK * _BLOCK))
+
+
+@wp.func
 def sample_index(i: int, j: int, k: int):
     return (k * _SIDE + j) * _SIDE + i
 
@@ -158,11 +164,11 @@ def make_kernels():
     ):
         tid = wp.tid() + offset
         a = tid // _CELLS
-        l = tid - a * _CELLS
         c = block_coords(g, active[a])
-        i = l % _BLOCK
-        j = (l // _BLOCK) % _BLOCK
-        k = l // (_BLOCK * _BLOCK)
+        lc = local_cell(tid - a * _CELLS)
+        i = lc[0]
+        j = lc[1]
+        k = lc[2]
         gx = c[0] * _BLOCK + i
         gy = c[1] * _BLOCK + j
         gz = c[2] * _BLOCK + k
@@ -242,11 +248,11 @@ def make_kernels():
         if mask == 0:
             return
         a = tid // _CELLS
-        l = tid - a * _CELLS
         c = block_coords(g, active[a])
-        i = l % _BLOCK
-        j = (l // _BLOCK) % _BLOCK
-        k = l // (_BLOCK * _BLOCK)
+        lc = local_cell(tid - a * _CELLS)
+        i = lc[0]
+        j = lc[1]
+        k = lc[2]
         p0 = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
         base = a * _SAMPLES
         f0 = samples[base + sample_index(i, j, k)] - iso
@@ -398,11 +404,11 @@ def make_kernels():
         if centre_counts[tid] == 0:
             return
         a = tid // _CELLS
-        l = tid - a * _CELLS
         b = block_coords(g, active[a])
-        i = l % _BLOCK
-        j = (l // _BLOCK) % _BLOCK
-        k = l // (_BLOCK * _BLOCK)
+        lc = local_cell(tid - a * _CELLS)
+        i = lc[0]
+        j = lc[1]
+        k = lc[2]
         entry = entries[tid]
         out = first_centre + centre_offsets[tid]
         first = int(0)
@@ -458,11 +464,11 @@ def make_kernels():
         if triangle_counts[tid] == 0:
             return
         a = tid // _CELLS
-        l = tid - a * _CELLS
         b = block_coords(g, active[a])
-        i = l % _BLOCK
-        j = (l // _BLOCK) % _BLOCK
-        k = l // (_BLOCK * _BLOCK)
+        lc = local_cell(tid - a * _CELLS)
+        i = lc[0]
+        j = lc[1]
+        k = lc[2]
         entry = entries[tid]
         out = triangle_offsets[tid]
         centre = first_centre + centre_offsets[tid]
