@@ -21,7 +21,8 @@ from ._errors import ModelError, ResourceError, SceneError, WarpblobError
 from ._linearize import LinearModel, linearize
 from ._parallel import set_thread_count, thread_count
 from .field import color, evaluate, field, gradient
-from .mesh import SurfaceMesh
+from . import mesh
+from .mesh import SurfaceMesh, TetMesh, TetQuality, TetStructure, quality
 from .polygonize import polygonize
 from .tree import (
     ISO_DISTANCE,
@@ -100,6 +101,11 @@ __all__ = [
     "evaluate",
     "polygonize",
     "SurfaceMesh",
+    "TetMesh",
+    "TetQuality",
+    "TetStructure",
+    "quality",
+    "mesh",
     "thread_count",
     "set_thread_count",
     "scenes",

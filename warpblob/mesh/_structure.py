@@ -1,0 +1,1387 @@
+"""The edge-based tetrahedral mesh structure that simulation and cutting work on (SPEC section 4).
+
+Four entity kinds, each stored as flat arrays (structure of arrays) that
+Warp kernels read directly (:meth:`TetStructure.to_warp`); the Python
+objects (:class:`NodeView` and friends) are views onto those arrays.
+
+- nodes: rest and current position;
+- edges: two nodes;
+- faces: three nodes and three edges (edge ``j`` joins nodes ``j`` and ``j + 1``)
+  and the one or two cells on its sides;
+- cells: four nodes (positive orientation), four faces (face ``k`` opposite
+  node ``k``, :data:`~warpblob.mesh._tetmesh.TET_FACES`), six edges
+  (:data:`~warpblob.mesh._tetmesh.TET_EDGES` order) and a material id.
+
+Top-down links (cell -> faces, edges, nodes; face -> edges, nodes; edge ->
+nodes) and the face -> cells slots are stored per entity and kept exact by
+every operation. The other bottom-up links (node -> edges, edge -> faces) are
+CSR arrays built by kernels (sort, then a binary search per row) and rebuilt
+by :meth:`TetStructure.rebuild_links`; between rebuilds the Python side keeps
+the incidences added since (a small dict of sets) and filters out stale
+ones, so queries are always exact and the CSR never needs patching in place.
+
+An edge is found in O(1) by the 64-bit key ``(max << 32) | min`` of its node
+ids: an open-addressing hash table with linear probing in two flat arrays
+(``keys`` int64, ``values`` int32; ``-1`` empty, ``-2`` deleted), built by a
+kernel and probed by :func:`edge_table_find` in kernels and by the same
+probe sequence in Python. Slots hold Fibonacci hashes of the key.
+
+Removal is deferred (the thesis' VolCut, SPEC section 6): a removed entity is
+flagged dead and listed as pending, indices stay valid until
+:meth:`TetStructure.collect_garbage` purges unreferenced faces, edges and
+nodes, compacts every kind and remaps every link. Every insert, update and
+removal fires an event to the observers (:meth:`TetStructure.subscribe`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import warp as wp
+
+from .._errors import WarpblobError
+from .._parallel import launch
+from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
+
+__all__ = [
+    "TetStructure",
+    "TetStructureArrays",
+    "NodeView",
+    "EdgeView",
+    "FaceView",
+    "CellView",
+    "edge_key",
+    "edge_table_find",
+    "lookup_edge",
+]
+
+KINDS = ("node", "edge", "face", "cell")
+EMPTY = -1  # hash slot never used
+DELETED = -2  # hash slot whose edge was removed (probing continues past it)
+_GOLDEN = 0x9E3779B97F4A7C15  # 2^64 / golden ratio: Fibonacci hashing
+_MASK64 = (1 << 64) - 1
+
+vec6i = wp.types.vector(length=6, dtype=wp.int32)
+_EMPTY_WP = wp.constant(wp.int64(EMPTY))
+_GOLDEN_WP = wp.constant(wp.uint64(_GOLDEN))
+
+
+# ---------------------------------------------------------------------------
+# device functions and the arrays kernels see
+# ---------------------------------------------------------------------------
+
+
+@wp.func
+def edge_key(a: int, b: int) -> wp.int64:
+    """The 64-bit key ``(max << 32) | min`` of the edge joining nodes ``a`` and ``b``."""
+    return (wp.int64(wp.max(a, b)) << wp.int64(32)) | wp.int64(wp.min(a, b))
+
+
+@wp.func
+def _edge_slot(key: wp.int64, bits: int) -> int:
+    return int((wp.uint64(key) * _GOLDEN_WP) >> wp.uint64(64 - bits))
+
+
+@wp.func
+def edge_table_find(
+    keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32), bits: int, a: int, b: int
+) -> int:
+    """The edge joining nodes ``a`` and ``b`` in the hash table of ``2**bits`` slots, or -1."""
+    key = edge_key(a, b)
+    mask = (1 << bits) - 1
+    s = _edge_slot(key, bits)
+    while keys[s] != _EMPTY_WP:
+        if keys[s] == key:
+            return values[s]
+        s = (s + 1) & mask
+    return -1
+
+
+@wp.struct
+class TetStructureArrays:
+    """The device copy of a :class:`TetStructure` (:meth:`TetStructure.to_warp`).
+
+    Per-kind arrays cover every slot, dead ones included (``*_alive`` is 0);
+    ``-1`` marks a missing link. CSR lists: the edges of node ``v`` are
+    ``node_edge_list[node_edge_offsets[v] : node_edge_offsets[v + 1]]``, the
+    faces of edge ``e`` likewise in ``edge_face_*``.
+    """
+
+    node_rest: wp.array(dtype=wp.vec3)
+    node_position: wp.array(dtype=wp.vec3)
+    node_alive: wp.array(dtype=wp.uint8)
+    edge_nodes: wp.array(dtype=wp.vec2i)
+    edge_alive: wp.array(dtype=wp.uint8)
+    face_nodes: wp.array(dtype=wp.vec3i)
+    face_edges: wp.array(dtype=wp.vec3i)
+    face_cells: wp.array(dtype=wp.vec2i)
+    face_alive: wp.array(dtype=wp.uint8)
+    cell_nodes: wp.array(dtype=wp.vec4i)
+    cell_faces: wp.array(dtype=wp.vec4i)
+    cell_edges: wp.array(dtype=vec6i)
+    cell_material: wp.array(dtype=wp.int32)
+    cell_alive: wp.array(dtype=wp.uint8)
+    node_edge_offsets: wp.array(dtype=wp.int32)
+    node_edge_list: wp.array(dtype=wp.int32)
+    edge_face_offsets: wp.array(dtype=wp.int32)
+    edge_face_list: wp.array(dtype=wp.int32)
+    edge_table_keys: wp.array(dtype=wp.int64)
+    edge_table_values: wp.array(dtype=wp.int32)
+    edge_table_bits: int
+
+
+@wp.func
+def lookup_edge(s: TetStructureArrays, a: int, b: int) -> int:
+    """The edge joining nodes ``a`` and ``b`` of structure ``s``, or -1 (O(1) expected)."""
+    return edge_table_find(s.edge_table_keys, s.edge_table_values, s.edge_table_bits, a, b)
+
+
+# ---------------------------------------------------------------------------
+# kernels: entities from tets (sort + scan), CSR links, the hash table
+# ---------------------------------------------------------------------------
+
+
+@wp.kernel(enable_backward=False)
+def emit_edge_keys_kernel(
+    tets: wp.array(dtype=wp.vec4i), offset: int, keys: wp.array(dtype=wp.int64), occurrences: wp.array(dtype=wp.int32)
+):
+    t = wp.tid() + offset
+    for j in range(6):
+        keys[6 * t + j] = edge_key(tets[t][TET_EDGES_WP[j, 0]], tets[t][TET_EDGES_WP[j, 1]])
+        occurrences[6 * t + j] = 6 * t + j
+
+
+@wp.kernel(enable_backward=False)
+def mark_heads_kernel(keys: wp.array(dtype=wp.int64), offset: int, heads: wp.array(dtype=wp.int32)):
+    """1 where a run of equal sorted keys starts."""
+    i = wp.tid() + offset
+    head = int(1)
+    if i > 0:
+        if keys[i] == keys[i - 1]:
+            head = 0
+    heads[i] = head
+
+
+@wp.kernel(enable_backward=False)
+def emit_edges_kernel(
+    keys: wp.array(dtype=wp.int64),
+    groups: wp.array(dtype=wp.int32),
+    occurrences: wp.array(dtype=wp.int32),
+    offset: int,
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    cell_edges: wp.array(dtype=wp.int32),
+):
+    """Edge ``groups[i] - 1`` (inclusive scan of heads) for sorted occurrence ``i``; (min, max) nodes."""
+    i = wp.tid() + offset
+    e = groups[i] - 1
+    cell_edges[occurrences[i]] = e
+    if i == 0 or groups[i - 1] != groups[i]:
+        k = keys[i]
+        edge_nodes[e] = wp.vec2i(int(k & wp.int64(0xFFFFFFFF)), int(k >> wp.int64(32)))
+
+
+@wp.kernel(enable_backward=False)
+def emit_face_keys_kernel(
+    tets: wp.array(dtype=wp.vec4i),
+    cell_edges: wp.array(dtype=wp.int32),
+    offset: int,
+    keys: wp.array(dtype=wp.int64),
+    occurrences: wp.array(dtype=wp.int32),
+):
+    """Face key ``(edge of its two smallest nodes) << 32 | largest node``: unique, fits 63 bits."""
+    t = wp.tid() + offset
+    tet = tets[t]
+    for k in range(4):
+        l0 = TET_FACES_WP[k, 0]
+        l1 = TET_FACES_WP[k, 1]
+        l2 = TET_FACES_WP[k, 2]
+        # put the local node with the largest global id last
+        if tet[l0] > tet[l2] and tet[l0] > tet[l1]:
+            l0, l2 = l2, l0
+        elif tet[l1] > tet[l2]:
+            l1, l2 = l2, l1
+        e = cell_edges[6 * t + TET_LOCAL_EDGE_WP[l0, l1]]
+        keys[4 * t + k] = (wp.int64(e) << wp.int64(32)) | wp.int64(tet[l2])
+        occurrences[4 * t + k] = 4 * t + k
+
+
+@wp.kernel(enable_backward=False)
+def emit_faces_kernel(
+    tets: wp.array(dtype=wp.vec4i),
+    cell_edges: wp.array(dtype=wp.int32),
+    groups: wp.array(dtype=wp.int32),
+    occurrences: wp.array(dtype=wp.int32),
+    offset: int,
+    face_nodes: wp.array(dtype=wp.vec3i),
+    face_edges: wp.array(dtype=wp.vec3i),
+    face_first: wp.array(dtype=wp.int32),
+    cell_faces: wp.array(dtype=wp.int32),
+):
+    """Face ``groups[i] - 1`` for sorted occurrence ``i``; the first occurrence (lowest cell,
+    the sort is stable) writes the face, oriented outward from that cell."""
+    i = wp.tid() + offset
+    f = groups[i] - 1
+    occ = occurrences[i]
+    cell_faces[occ] = f
+    if i == 0 or groups[i - 1] != groups[i]:
+        t = occ // 4
+        k = occ - 4 * t
+        face_first[f] = i
+        face_nodes[f] = wp.vec3i(tets[t][TET_FACES_WP[k, 0]], tets[t][TET_FACES_WP[k, 1]], tets[t][TET_FACES_WP[k, 2]])
+        face_edges[f] = wp.vec3i(
+            cell_edges[6 * t + TET_LOCAL_EDGE_WP[TET_FACES_WP[k, 0], TET_FACES_WP[k, 1]]],
+            cell_edges[6 * t + TET_LOCAL_EDGE_WP[TET_FACES_WP[k, 1], TET_FACES_WP[k, 2]]],
+            cell_edges[6 * t + TET_LOCAL_EDGE_WP[TET_FACES_WP[k, 2], TET_FACES_WP[k, 0]]],
+        )
+
+
+@wp.kernel(enable_backward=False)
+def link_face_cells_kernel(
+    groups: wp.array(dtype=wp.int32),
+    occurrences: wp.array(dtype=wp.int32),
+    face_first: wp.array(dtype=wp.int32),
+    offset: int,
+    face_cells: wp.array(dtype=wp.int32),
+):
+    """Slot ``i - first`` of the face's two cell slots (a third cell is caught on the host)."""
+    i = wp.tid() + offset
+    f = groups[i] - 1
+    slot = i - face_first[f]
+    if slot < 2:
+        face_cells[2 * f + slot] = occurrences[i] // 4
+
+
+@wp.kernel(enable_backward=False)
+def emit_node_edges_kernel(
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    edge_alive: wp.array(dtype=wp.uint8),
+    sentinel: int,
+    offset: int,
+    rows: wp.array(dtype=wp.int32),
+    cols: wp.array(dtype=wp.int32),
+):
+    """(node, edge) incidences; a dead edge's rows are ``sentinel`` (sorted past every real row)."""
+    e = wp.tid() + offset
+    for s in range(2):
+        rows[2 * e + s] = sentinel
+        if edge_alive[e] != wp.uint8(0):
+            rows[2 * e + s] = edge_nodes[e][s]
+        cols[2 * e + s] = e
+
+
+@wp.kernel(enable_backward=False)
+def emit_edge_faces_kernel(
+    face_edges: wp.array(dtype=wp.vec3i),
+    face_alive: wp.array(dtype=wp.uint8),
+    sentinel: int,
+    offset: int,
+    rows: wp.array(dtype=wp.int32),
+    cols: wp.array(dtype=wp.int32),
+):
+    """(edge, face) incidences; a dead face's rows are ``sentinel``."""
+    f = wp.tid() + offset
+    for s in range(3):
+        rows[3 * f + s] = sentinel
+        if face_alive[f] != wp.uint8(0):
+            rows[3 * f + s] = face_edges[f][s]
+        cols[3 * f + s] = f
+
+
+@wp.kernel(enable_backward=False)
+def lower_bound_kernel(
+    sorted_rows: wp.array(dtype=wp.int32), count: int, offset: int, offsets: wp.array(dtype=wp.int32)
+):
+    """CSR offset of row ``r``: the first of the ``count`` sorted rows that is >= ``r``."""
+    r = wp.tid() + offset
+    lo = int(0)
+    hi = count
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if sorted_rows[mid] < r:
+            lo = mid + 1
+        else:
+            hi = mid
+    offsets[r] = lo
+
+
+@wp.kernel(enable_backward=False)
+def insert_edges_kernel(
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    edge_alive: wp.array(dtype=wp.uint8),
+    bits: int,
+    keys: wp.array(dtype=wp.int64),
+    values: wp.array(dtype=wp.int32),
+):
+    """Claim a slot per live edge by compare-and-swap, probing linearly."""
+    e = wp.tid()
+    if edge_alive[e] == wp.uint8(0):
+        return
+    key = edge_key(edge_nodes[e][0], edge_nodes[e][1])
+    mask = (1 << bits) - 1
+    s = _edge_slot(key, bits)
+    placed = int(0)
+    while placed == 0:
+        if wp.atomic_cas(keys, s, _EMPTY_WP, key) == _EMPTY_WP:
+            values[s] = e
+            placed = 1
+        else:
+            s = (s + 1) & mask
+
+
+@wp.kernel(enable_backward=False)
+def find_edges_kernel(
+    keys: wp.array(dtype=wp.int64),
+    values: wp.array(dtype=wp.int32),
+    bits: int,
+    pairs: wp.array(dtype=wp.vec2i),
+    offset: int,
+    found: wp.array(dtype=wp.int32),
+):
+    i = wp.tid() + offset
+    found[i] = edge_table_find(keys, values, bits, pairs[i][0], pairs[i][1])
+
+
+# ---------------------------------------------------------------------------
+# host helpers
+# ---------------------------------------------------------------------------
+
+
+def _group_sorted(keys: wp.array, count: int, device, threads) -> tuple[wp.array, int]:
+    """Inclusive scan of run heads over ``count`` sorted keys (``i`` is in run ``groups[i] - 1``); number of runs."""
+    heads = wp.empty(count, dtype=wp.int32, device=device)
+    launch(mark_heads_kernel, count, [keys], [heads], device, threads)
+    groups = wp.empty(count, dtype=wp.int32, device=device)
+    if count == 0:
+        return groups, 0
+    wp.utils.array_scan(heads, groups, inclusive=True)
+    # host sync: the number of distinct keys sizes the entity arrays
+    return groups, int(groups[count - 1 : count].numpy()[0])
+
+
+def _csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, threads) -> tuple[np.ndarray, np.ndarray]:
+    """CSR of ``count`` (row, col) pairs (arrays of 2 ``count``, for the radix sort); lists keep col order.
+
+    Sorting replaces the usual count / scan / fill: filling needs an atomic
+    cursor per row, and Warp's CPU atomics are not atomic across the
+    concurrent range-split launches; the stable sort also leaves every list
+    in ascending order, the same on every device.
+    """
+    offsets = wp.empty(row_count + 1, dtype=wp.int32, device=device)
+    wp.utils.radix_sort_pairs(rows, cols, count)
+    launch(lower_bound_kernel, row_count + 1, [rows, count], [offsets], device, threads)
+    off = offsets.numpy()
+    return off, cols.numpy()[: off[-1]].copy()
+
+
+def _table_bits(live_edges: int) -> int:
+    """log2 of the table size: at least four slots per edge (load <= 1/4 after a build, <= 1/2 ever)."""
+    return max(4, int(4 * max(live_edges, 1) - 1).bit_length())
+
+
+def _build_table(edge_nodes: wp.array, edge_alive: wp.array, live_edges: int, device) -> tuple:
+    """The edge lookup table of the live edges: (keys (2^bits,) int64, values (2^bits,) int32, bits)."""
+    bits = _table_bits(live_edges)
+    keys = wp.full(1 << bits, EMPTY, dtype=wp.int64, device=device)
+    values = wp.full(1 << bits, EMPTY, dtype=wp.int32, device=device)
+    # Warp's CPU atomics are plain loads and stores: this launch must not be range-split across threads
+    inputs = [edge_nodes, edge_alive, bits, keys, values]
+    wp.launch(insert_edges_kernel, dim=edge_nodes.shape[0], inputs=inputs, device=device)
+    return keys.numpy(), values.numpy(), bits
+
+
+def _host_key(a: int, b: int) -> int:
+    return (max(a, b) << 32) | min(a, b)
+
+
+def _host_slot(key: int, bits: int) -> int:
+    return ((key * _GOLDEN) & _MASK64) >> (64 - bits)
+
+
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
+    """``index_map[refs]`` with -1 kept as -1."""
+    return np.where(refs >= 0, index_map[np.maximum(refs, 0)], -1).astype(np.int32)
+
+
+class _Store:
+    """One entity kind as structure of arrays: slots ``[0, count)`` in use, capacity doubling."""
+
+    def __init__(self, columns: dict):
+        self.columns = columns  # name -> (trailing shape, dtype, fill)
+        self.count = 0
+        self.arrays = {n: np.full((0, *shape), fill, dtype=dt) for n, (shape, dt, fill) in columns.items()}
+
+    def load(self, **arrays) -> None:
+        """Replace every column (all of the same length, which becomes the count)."""
+        self.count = len(arrays["alive"])
+        for name, (shape, dt, _) in self.columns.items():
+            self.arrays[name] = np.array(arrays[name], dtype=dt).reshape(self.count, *shape)  # a copy: we own it
+
+    def append(self, **values) -> int:
+        i = self.count
+        capacity = len(self.arrays["alive"])
+        if i == capacity:
+            for name, (shape, dt, fill) in self.columns.items():
+                grown = np.full((max(16, 2 * capacity), *shape), fill, dtype=dt)
+                grown[:capacity] = self.arrays[name]
+                self.arrays[name] = grown
+        for name, value in values.items():
+            self.arrays[name][i] = value
+        self.arrays["alive"][i] = True
+        self.count = i + 1
+        return i
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.arrays[name][: self.count]
+
+
+def _stores() -> dict:
+    alive = ((), np.bool_, False)
+    return {
+        "node": _Store({"rest": ((3,), np.float32, 0.0), "position": ((3,), np.float32, 0.0), "alive": alive}),
+        "edge": _Store({"nodes": ((2,), np.int32, -1), "alive": alive}),
+        "face": _Store(
+            {
+                "nodes": ((3,), np.int32, -1),
+                "edges": ((3,), np.int32, -1),
+                "cells": ((2,), np.int32, -1),
+                "alive": alive,
+            }
+        ),
+        "cell": _Store(
+            {
+                "nodes": ((4,), np.int32, -1),
+                "faces": ((4,), np.int32, -1),
+                "edges": ((6,), np.int32, -1),
+                "material": ((), np.int32, 0),
+                "alive": alive,
+            }
+        ),
+    }
+
+
+# ---------------------------------------------------------------------------
+# views
+# ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class NodeView:
+    """A node of a :class:`TetStructure` (reads the structure's arrays; holds no data)."""
+
+    structure: TetStructure
+    index: int
+
+    @property
+    def alive(self) -> bool:
+        return bool(self.structure.node_alive[self.index])
+
+    @property
+    def rest(self) -> np.ndarray:
+        """(3,) rest position, model units."""
+        return self.structure.node_rest[self.index]
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) current position, model units."""
+        return self.structure.node_position[self.index]
+
+    @property
+    def edges(self) -> np.ndarray:
+        """Incident live edges, sorted."""
+        return self.structure.edges_of_node(self.index)
+
+
+@dataclass(frozen=True)
+class EdgeView:
+    """An edge of a :class:`TetStructure`."""
+
+    structure: TetStructure
+    index: int
+
+    @property
+    def alive(self) -> bool:
+        return bool(self.structure.edge_alive[self.index])
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.structure.edge_nodes[self.index]
+
+    @property
+    def faces(self) -> np.ndarray:
+        """Incident live faces, sorted."""
+        return self.structure.faces_of_edge(self.index)
+
+
+@dataclass(frozen=True)
+class FaceView:
+    """A face of a :class:`TetStructure`."""
+
+    structure: TetStructure
+    index: int
+
+    @property
+    def alive(self) -> bool:
+        return bool(self.structure.face_alive[self.index])
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.structure.face_nodes[self.index]
+
+    @property
+    def edges(self) -> np.ndarray:
+        return self.structure.face_edges[self.index]
+
+    @property
+    def cells(self) -> np.ndarray:
+        """The one or two live cells on its sides (none once they are removed)."""
+        return self.structure.cells_of_face(self.index)
+
+
+@dataclass(frozen=True)
+class CellView:
+    """A cell (tet) of a :class:`TetStructure`."""
+
+    structure: TetStructure
+    index: int
+
+    @property
+    def alive(self) -> bool:
+        return bool(self.structure.cell_alive[self.index])
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.structure.cell_nodes[self.index]
+
+    @property
+    def faces(self) -> np.ndarray:
+        return self.structure.cell_faces[self.index]
+
+    @property
+    def edges(self) -> np.ndarray:
+        return self.structure.cell_edges[self.index]
+
+    @property
+    def material(self) -> int:
+        return int(self.structure.cell_material[self.index])
+
+
+# ---------------------------------------------------------------------------
+# the structure
+# ---------------------------------------------------------------------------
+
+
+class TetStructure:
+    """Nodes, edges, faces and cells with links both ways, edits, events and garbage collection.
+
+    Build one with :meth:`from_tetmesh` (kernels) or start empty and insert.
+    Array properties (``node_rest``, ``edge_nodes``, ``face_cells``, ...) are
+    read-only views over every slot in use, dead ones included; edit through
+    the methods, which keep every link correct and fire events.
+
+    Example:
+        >>> import numpy as np
+        >>> from warpblob.mesh import TetMesh, TetStructure
+        >>> s = TetStructure.from_tetmesh(TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]))
+        >>> s.node_count, s.edge_count, s.face_count, s.cell_count
+        (4, 6, 4, 1)
+        >>> m1, m2, e = s.split_edge(s.find_edge(0, 1), 0.5)
+        >>> s.node_rest[m1].tolist(), s.edge_nodes[e].tolist()
+        ([0.5, 0.0, 0.0], [5, 1])
+    """
+
+    def __init__(self):
+        self._stores = _stores()
+        self._observers: list[Callable[[str, str, int], None]] = []
+        self._pending: dict[str, list[int]] = {k: [] for k in KINDS}
+        self.last_remap: dict[str, np.ndarray] = {}
+        self.stats: dict = {}
+        self._table_keys = np.full(16, EMPTY, dtype=np.int64)
+        self._table_values = np.full(16, EMPTY, dtype=np.int32)
+        self._table_bits = 4
+        self._table_used = 0  # live keys plus deleted slots
+        self._clear_links()
+
+    def _clear_links(self) -> None:
+        self._node_edge_offsets = np.zeros(1, dtype=np.int32)
+        self._node_edge_list = np.zeros(0, dtype=np.int32)
+        self._edge_face_offsets = np.zeros(1, dtype=np.int32)
+        self._edge_face_list = np.zeros(0, dtype=np.int32)
+        self._new_node_edges: dict[int, set[int]] = {}
+        self._new_edge_faces: dict[int, set[int]] = {}
+        self._links_dirty = False
+
+    # -- construction --------------------------------------------------------
+
+    @classmethod
+    def from_tetmesh(cls, tetmesh: TetMesh, *, device=None, threads: int | None = None) -> TetStructure:
+        """Build every entity and link of ``tetmesh`` with Warp kernels.
+
+        Edges: each tet emits the keys of its six edges, a radix sort groups
+        equal keys, a scan of run heads numbers them. Faces: likewise with the
+        key ``(edge of the two smallest nodes) << 32 | largest node``; the
+        first tet of each group (the sort is stable) orients the face. Then the
+        CSR links and the edge hash table (:meth:`rebuild_links`).
+
+        Args:
+            tetmesh: a conforming mesh (a face in three tets is an error).
+            device: Warp device for the build (default: Warp's default device);
+                the result lives on the host either way.
+            threads: CPU threads (default: :func:`warpblob.thread_count`).
+
+        Raises:
+            WarpblobError: a face is shared by more than two tets.
+        """
+        from ..field._engine import resolve_device
+
+        start = time.perf_counter()
+        dev = resolve_device(device)
+        s = cls()
+        T, N = tetmesh.tet_count, tetmesh.node_count
+        tets = wp.array(tetmesh.tets, dtype=wp.vec4i, device=dev)
+
+        keys = wp.empty(12 * T, dtype=wp.int64, device=dev)
+        occurrences = wp.empty(12 * T, dtype=wp.int32, device=dev)
+        launch(emit_edge_keys_kernel, T, [tets], [keys, occurrences], dev, threads)
+        wp.utils.radix_sort_pairs(keys, occurrences, 6 * T)
+        groups, E = _group_sorted(keys, 6 * T, dev, threads)
+        edge_nodes = wp.empty(E, dtype=wp.vec2i, device=dev)
+        cell_edges = wp.empty(6 * T, dtype=wp.int32, device=dev)
+        launch(emit_edges_kernel, 6 * T, [keys, groups, occurrences], [edge_nodes, cell_edges], dev, threads)
+
+        keys = wp.empty(8 * T, dtype=wp.int64, device=dev)
+        occurrences = wp.empty(8 * T, dtype=wp.int32, device=dev)
+        launch(emit_face_keys_kernel, T, [tets, cell_edges], [keys, occurrences], dev, threads)
+        wp.utils.radix_sort_pairs(keys, occurrences, 4 * T)
+        groups, F = _group_sorted(keys, 4 * T, dev, threads)
+        face_nodes = wp.empty(F, dtype=wp.vec3i, device=dev)
+        face_edges = wp.empty(F, dtype=wp.vec3i, device=dev)
+        face_first = wp.empty(F, dtype=wp.int32, device=dev)
+        cell_faces = wp.empty(4 * T, dtype=wp.int32, device=dev)
+        launch(
+            emit_faces_kernel, 4 * T, [tets, cell_edges, groups, occurrences],
+            [face_nodes, face_edges, face_first, cell_faces], dev, threads,
+        )  # fmt: skip
+        face_cells = wp.full(2 * F, -1, dtype=wp.int32, device=dev)
+        launch(link_face_cells_kernel, 4 * T, [groups, occurrences, face_first], [face_cells], dev, threads)
+        sizes = np.diff(np.append(face_first.numpy(), 4 * T))
+        if np.any(sizes > 2):
+            f = int(np.argmax(sizes))
+            raise WarpblobError(
+                f"TetStructure.from_tetmesh: face {face_nodes.numpy()[f].tolist()} is shared by {sizes[f]} tets; "
+                "a tet mesh face has one or two"
+            )
+
+        s._stores["node"].load(rest=tetmesh.nodes, position=tetmesh.nodes, alive=np.ones(N, dtype=bool))
+        s._stores["edge"].load(nodes=edge_nodes.numpy(), alive=np.ones(E, dtype=bool))
+        s._stores["face"].load(
+            nodes=face_nodes.numpy(), edges=face_edges.numpy(), cells=face_cells.numpy(), alive=np.ones(F, dtype=bool)
+        )
+        material = tetmesh.material if tetmesh.material is not None else np.zeros(T, dtype=np.int32)
+        s._stores["cell"].load(
+            nodes=tetmesh.tets,
+            faces=cell_faces.numpy(),
+            edges=cell_edges.numpy(),
+            material=material,
+            alive=np.ones(T, dtype=bool),
+        )
+        s._rebuild(dev, threads)
+        s.stats = {"seconds": time.perf_counter() - start, "device": str(dev)}
+        return s
+
+    def rebuild_links(self, *, device=None, threads: int | None = None) -> None:
+        """Rebuild the bottom-up CSR links and the edge hash table from the top-down links (kernels).
+
+        Drops the Python-side record of incidences added since the last
+        rebuild. :meth:`collect_garbage` and :meth:`to_warp` call it as needed.
+        """
+        from ..field._engine import resolve_device
+
+        self._rebuild(resolve_device(device), threads)
+
+    def _rebuild(self, dev, threads) -> None:
+        edges, faces = self._stores["edge"], self._stores["face"]
+        E, F, N = edges.count, faces.count, self._stores["node"].count
+        edge_nodes = wp.array(edges["nodes"], dtype=wp.vec2i, device=dev)
+        edge_alive = wp.array(edges["alive"].view(np.uint8), dtype=wp.uint8, device=dev)
+        face_edges = wp.array(faces["edges"], dtype=wp.vec3i, device=dev)
+        face_alive = wp.array(faces["alive"].view(np.uint8), dtype=wp.uint8, device=dev)
+        self._clear_links()
+
+        rows = wp.empty(4 * E, dtype=wp.int32, device=dev)
+        cols = wp.empty(4 * E, dtype=wp.int32, device=dev)
+        launch(emit_node_edges_kernel, E, [edge_nodes, edge_alive, N], [rows, cols], dev, threads)
+        self._node_edge_offsets, self._node_edge_list = _csr(rows, cols, 2 * E, N, dev, threads)
+
+        rows = wp.empty(6 * F, dtype=wp.int32, device=dev)
+        cols = wp.empty(6 * F, dtype=wp.int32, device=dev)
+        launch(emit_edge_faces_kernel, F, [face_edges, face_alive, E], [rows, cols], dev, threads)
+        self._edge_face_offsets, self._edge_face_list = _csr(rows, cols, 3 * F, E, dev, threads)
+
+        self._build_table(dev, edge_nodes, edge_alive)
+
+    def _build_table(self, dev, edge_nodes: wp.array | None = None, edge_alive: wp.array | None = None) -> None:
+        edges = self._stores["edge"]
+        if edge_nodes is None:
+            edge_nodes = wp.array(edges["nodes"], dtype=wp.vec2i, device=dev)
+            edge_alive = wp.array(edges["alive"].view(np.uint8), dtype=wp.uint8, device=dev)
+        live = int(np.count_nonzero(edges["alive"]))
+        self._table_keys, self._table_values, self._table_bits = _build_table(edge_nodes, edge_alive, live, dev)
+        self._table_used = live
+
+    # -- array views ----------------------------------------------------------
+
+    def _view(self, kind: str, column: str) -> np.ndarray:
+        return _frozen(self._stores[kind][column])
+
+    node_rest = property(lambda self: self._view("node", "rest"), doc="(N, 3) float32 rest positions.")
+    node_position = property(lambda self: self._view("node", "position"), doc="(N, 3) float32 current positions.")
+    node_alive = property(lambda self: self._view("node", "alive"), doc="(N,) bool.")
+    edge_nodes = property(lambda self: self._view("edge", "nodes"), doc="(E, 2) int32 nodes of each edge.")
+    edge_alive = property(lambda self: self._view("edge", "alive"), doc="(E,) bool.")
+    face_nodes = property(lambda self: self._view("face", "nodes"), doc="(F, 3) int32 nodes of each face.")
+    face_edges = property(lambda self: self._view("face", "edges"), doc="(F, 3) int32; edge j joins nodes j, j+1.")
+    face_cells = property(lambda self: self._view("face", "cells"), doc="(F, 2) int32 cells on its sides, -1 none.")
+    face_alive = property(lambda self: self._view("face", "alive"), doc="(F,) bool.")
+    cell_nodes = property(lambda self: self._view("cell", "nodes"), doc="(C, 4) int32 nodes, positive order.")
+    cell_faces = property(lambda self: self._view("cell", "faces"), doc="(C, 4) int32; face k opposite node k.")
+    cell_edges = property(lambda self: self._view("cell", "edges"), doc="(C, 6) int32 in TET_EDGES order.")
+    cell_material = property(lambda self: self._view("cell", "material"), doc="(C,) int32 material ids.")
+    cell_alive = property(lambda self: self._view("cell", "alive"), doc="(C,) bool.")
+
+    def _count(self, kind: str) -> int:
+        return int(np.count_nonzero(self._stores[kind]["alive"]))
+
+    node_count = property(lambda self: self._count("node"), doc="Live nodes.")
+    edge_count = property(lambda self: self._count("edge"), doc="Live edges.")
+    face_count = property(lambda self: self._count("face"), doc="Live faces.")
+    cell_count = property(lambda self: self._count("cell"), doc="Live cells.")
+
+    def ids(self, kind: str) -> np.ndarray:
+        """Indices (int32, ascending) of the live entities of ``kind`` ("node", "edge", "face" or "cell")."""
+        self._check_kind(kind)
+        return np.flatnonzero(self._stores[kind]["alive"]).astype(np.int32)
+
+    def node(self, index: int) -> NodeView:
+        return NodeView(self, self._check(index, "node", alive=False))
+
+    def edge(self, index: int) -> EdgeView:
+        return EdgeView(self, self._check(index, "edge", alive=False))
+
+    def face(self, index: int) -> FaceView:
+        return FaceView(self, self._check(index, "face", alive=False))
+
+    def cell(self, index: int) -> CellView:
+        return CellView(self, self._check(index, "cell", alive=False))
+
+    @property
+    def pending(self) -> dict[str, tuple[int, ...]]:
+        """Entities removed since the last :meth:`collect_garbage`, per kind."""
+        return {k: tuple(v) for k, v in self._pending.items()}
+
+    def __repr__(self) -> str:
+        return (
+            f"TetStructure(nodes={self.node_count}, edges={self.edge_count}, "
+            f"faces={self.face_count}, cells={self.cell_count})"
+        )
+
+    # -- checks -----------------------------------------------------------------
+
+    @staticmethod
+    def _check_kind(kind: str) -> None:
+        if kind not in KINDS:
+            raise WarpblobError(f"TetStructure: kind must be one of {', '.join(KINDS)}, got {kind!r}")
+
+    def _check(self, index, kind: str, *, alive: bool = True) -> int:
+        store = self._stores[kind]
+        if isinstance(index, (bool, np.bool_)) or not isinstance(index, (int, np.integer)):
+            raise WarpblobError(f"TetStructure: {kind} index must be an integer, got {index!r}")
+        i = int(index)
+        if not 0 <= i < store.count:
+            raise WarpblobError(f"TetStructure: {kind} {i} does not exist ({store.count} {kind} slots)")
+        if alive and not store.arrays["alive"][i]:
+            raise WarpblobError(f"TetStructure: {kind} {i} was removed")
+        return i
+
+    def _check_nodes(self, nodes, count: int) -> list[int]:
+        ids = [self._check(n, "node") for n in nodes]
+        if len(ids) != count or len(set(ids)) != count:
+            raise WarpblobError(f"TetStructure: need {count} distinct live nodes, got {list(nodes)!r}")
+        return ids
+
+    @staticmethod
+    def _point(value, name: str) -> np.ndarray:
+        p = np.asarray(value, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise WarpblobError(f"TetStructure: {name} must be 3 finite numbers, got {value!r}")
+        return p.astype(np.float32)
+
+    # -- events -------------------------------------------------------------------
+
+    def subscribe(self, callback: Callable[[str, str, int], None]) -> Callable[[str, str, int], None]:
+        """Call ``callback(kind, action, index)`` on every change; returns ``callback``.
+
+        ``kind`` is "node", "edge", "face" or "cell"; ``action`` is "insert",
+        "update" or "remove" (``index`` the entity), or "compact" after
+        :meth:`collect_garbage` (``index`` the live count; the old -> new map is
+        ``last_remap[kind]``). Linking a cell to a face's cell slots is part of
+        the cell's event, not a face update.
+        """
+        self._observers.append(callback)
+        return callback
+
+    def unsubscribe(self, callback) -> None:
+        """Stop calling ``callback``."""
+        self._observers.remove(callback)
+
+    def _emit(self, kind: str, action: str, index: int) -> None:
+        for callback in list(self._observers):
+            callback(kind, action, index)
+
+    # -- lookups and bottom-up links ------------------------------------------------
+
+    @staticmethod
+    def edge_key(a: int, b: int) -> int:
+        """The 64-bit key ``(max << 32) | min`` of the edge joining nodes ``a`` and ``b``."""
+        return _host_key(int(a), int(b))
+
+    def find_edge(self, a: int, b: int) -> int:
+        """The live edge joining nodes ``a`` and ``b`` (either order), or -1; O(1) expected."""
+        key = _host_key(int(a), int(b))
+        mask = (1 << self._table_bits) - 1
+        s = _host_slot(key, self._table_bits)
+        keys = self._table_keys
+        while keys[s] != EMPTY:
+            if keys[s] == key:
+                return int(self._table_values[s])
+            s = (s + 1) & mask
+        return -1
+
+    def find_edges(self, pairs, *, device=None, threads: int | None = None) -> np.ndarray:
+        """Batch :meth:`find_edge` in a kernel: (M, 2) node pairs -> (M,) int32 edges, -1 where none."""
+        from ..field._engine import resolve_device
+
+        pairs = np.ascontiguousarray(pairs, dtype=np.int32).reshape(-1, 2)
+        dev = resolve_device(device)
+        found = wp.empty(len(pairs), dtype=wp.int32, device=dev)
+        inputs = [
+            wp.array(self._table_keys, dtype=wp.int64, device=dev),
+            wp.array(self._table_values, dtype=wp.int32, device=dev),
+            self._table_bits,
+            wp.array(pairs, dtype=wp.vec2i, device=dev),
+        ]
+        launch(find_edges_kernel, len(pairs), inputs, [found], dev, threads)
+        return found.numpy()
+
+    def find_face(self, a: int, b: int, c: int) -> int:
+        """The live face on nodes ``a``, ``b``, ``c`` (any order), or -1 (through the faces of edge a-b)."""
+        e = self.find_edge(a, b)
+        if e < 0:
+            return -1
+        want = sorted((int(a), int(b), int(c)))
+        nodes = self._stores["face"]["nodes"]
+        for f in self.faces_of_edge(e):
+            if sorted(nodes[f].tolist()) == want:
+                return int(f)
+        return -1
+
+    def _incident(self, i: int, offsets, lists, added: dict, owner: np.ndarray, alive: np.ndarray) -> np.ndarray:
+        base = lists[offsets[i] : offsets[i + 1]] if i + 1 < len(offsets) else lists[:0]
+        extra = added.get(i)
+        candidates = np.concatenate([base, np.fromiter(extra, dtype=np.int32, count=len(extra))]) if extra else base
+        keep = alive[candidates] & (owner[candidates] == i).any(axis=1)
+        return np.unique(candidates[keep]).astype(np.int32)
+
+    def edges_of_node(self, node: int) -> np.ndarray:
+        """Live edges incident to ``node``, sorted (int32)."""
+        v = self._check(node, "node", alive=False)
+        edges = self._stores["edge"]
+        return self._incident(
+            v, self._node_edge_offsets, self._node_edge_list, self._new_node_edges, edges["nodes"], edges["alive"]
+        )
+
+    def faces_of_edge(self, edge: int) -> np.ndarray:
+        """Live faces incident to ``edge``, sorted (int32)."""
+        e = self._check(edge, "edge", alive=False)
+        faces = self._stores["face"]
+        return self._incident(
+            e, self._edge_face_offsets, self._edge_face_list, self._new_edge_faces, faces["edges"], faces["alive"]
+        )
+
+    def cells_of_face(self, face: int) -> np.ndarray:
+        """The live cells on the sides of ``face`` (0, 1 or 2; int32)."""
+        f = self._check(face, "face", alive=False)
+        cells = self._stores["face"]["cells"][f]
+        return cells[cells >= 0].copy()
+
+    def one_ring(self, node: int) -> np.ndarray:
+        """Nodes joined to ``node`` by a live edge, sorted (int32)."""
+        return self.k_ring(node, 1)
+
+    def k_ring(self, node: int, k: int) -> np.ndarray:
+        """Nodes within ``k`` edges of ``node`` (breadth-first search), itself excluded, sorted (int32)."""
+        v = self._check(node, "node")
+        if not isinstance(k, (int, np.integer)) or k < 0:
+            raise WarpblobError(f"TetStructure.k_ring: k must be a non-negative integer, got {k!r}")
+        edge_nodes = self._stores["edge"]["nodes"]
+        seen = {v}
+        frontier = [v]
+        for _ in range(int(k)):
+            following = []
+            for u in frontier:
+                for w in edge_nodes[self.edges_of_node(u)].ravel().tolist():
+                    if w not in seen:
+                        seen.add(w)
+                        following.append(w)
+            frontier = following
+        seen.discard(v)
+        return np.array(sorted(seen), dtype=np.int32)
+
+    # -- hash table edits -----------------------------------------------------------
+
+    def _table_insert(self, key: int, edge: int) -> None:
+        if 2 * (self._table_used + 1) > len(self._table_keys):
+            # too full (deleted slots count): rebuild with room, this edge included
+            self._build_table("cpu")
+            if self.find_edge(key >> 32, key & 0xFFFFFFFF) == edge:
+                return
+        mask = (1 << self._table_bits) - 1
+        s = _host_slot(key, self._table_bits)
+        while self._table_keys[s] >= 0:
+            s = (s + 1) & mask
+        if self._table_keys[s] == EMPTY:
+            self._table_used += 1
+        self._table_keys[s] = key
+        self._table_values[s] = edge
+
+    def _table_remove(self, key: int) -> None:
+        mask = (1 << self._table_bits) - 1
+        s = _host_slot(key, self._table_bits)
+        while self._table_keys[s] != key:
+            if self._table_keys[s] == EMPTY:
+                raise WarpblobError(f"TetStructure: edge key {key:#x} is not in the lookup table")
+            s = (s + 1) & mask
+        self._table_keys[s] = DELETED
+        self._table_values[s] = EMPTY
+
+    # -- inserts ---------------------------------------------------------------------
+
+    def insert_node(self, rest, position=None) -> int:
+        """A new node at ``rest`` (current position ``position``, default ``rest``); returns its index."""
+        r = self._point(rest, "rest")
+        p = r if position is None else self._point(position, "position")
+        i = self._stores["node"].append(rest=r, position=p)
+        self._emit("node", "insert", i)
+        return i
+
+    def insert_edge(self, a: int, b: int) -> int:
+        """A new edge from node ``a`` to node ``b``; returns its index.
+
+        Raises:
+            WarpblobError: a node is missing or removed, ``a == b``, or the edge exists.
+        """
+        a, b = self._check_nodes((a, b), 2)
+        e = self.find_edge(a, b)
+        if e >= 0:
+            raise WarpblobError(f"TetStructure.insert_edge: nodes {a} and {b} are already joined by edge {e}")
+        i = self._stores["edge"].append(nodes=(a, b))
+        self._table_insert(_host_key(a, b), i)
+        self._note_edge(i, a, b)
+        self._emit("edge", "insert", i)
+        return i
+
+    def _note_edge(self, e: int, a: int, b: int) -> None:
+        self._new_node_edges.setdefault(a, set()).add(e)
+        self._new_node_edges.setdefault(b, set()).add(e)
+        self._links_dirty = True
+
+    def _edge_for(self, a: int, b: int) -> int:
+        e = self.find_edge(a, b)
+        return e if e >= 0 else self.insert_edge(a, b)
+
+    def insert_face(self, a: int, b: int, c: int) -> int:
+        """A new face ``(a, b, c)``, inserting its missing edges; returns its index.
+
+        Raises:
+            WarpblobError: a node is missing, removed or repeated, or the face exists.
+        """
+        nodes = self._check_nodes((a, b, c), 3)
+        f = self.find_face(*nodes)
+        if f >= 0:
+            raise WarpblobError(f"TetStructure.insert_face: nodes {nodes} already make face {f}")
+        edges = [self._edge_for(nodes[j], nodes[(j + 1) % 3]) for j in range(3)]
+        i = self._stores["face"].append(nodes=nodes, edges=edges)
+        self._note_face(i, edges)
+        self._emit("face", "insert", i)
+        return i
+
+    def _note_face(self, f: int, edges) -> None:
+        for e in edges:
+            self._new_edge_faces.setdefault(int(e), set()).add(f)
+        self._links_dirty = True
+
+    def _cell_faces_for(self, nodes: list[int], cell: int = -1) -> list[int]:
+        """Check that each face of a cell on ``nodes`` has a free side (``cell`` itself may hold one)."""
+        faces = []
+        for k in range(4):
+            f = self.find_face(*(nodes[j] for j in TET_FACES[k]))
+            if f >= 0:
+                others = [c for c in self._stores["face"]["cells"][f] if c >= 0 and c != cell]
+                if len(others) == 2:
+                    raise WarpblobError(
+                        f"TetStructure: face {f} {self._stores['face']['nodes'][f].tolist()} already has two cells"
+                    )
+            faces.append(f)
+        return faces
+
+    def _link_cell(self, c: int, nodes: list[int], found: list[int]) -> None:
+        """Find or insert the faces and edges of cell ``c`` on ``nodes`` and link it to its faces."""
+        cells = self._stores["cell"]
+        faces = [f if f >= 0 else self.insert_face(*(nodes[j] for j in TET_FACES[k])) for k, f in enumerate(found)]
+        face_cells = self._stores["face"].arrays["cells"]
+        for f in faces:
+            slot = 0 if face_cells[f, 0] < 0 else 1
+            face_cells[f, slot] = c
+        cells.arrays["nodes"][c] = nodes
+        cells.arrays["faces"][c] = faces
+        cells.arrays["edges"][c] = [self.find_edge(nodes[i], nodes[j]) for i, j in TET_EDGES]
+
+    def _unlink_cell(self, c: int) -> None:
+        face_cells = self._stores["face"].arrays["cells"]
+        for f in self._stores["cell"]["faces"][c]:
+            if face_cells[f, 0] == c:
+                face_cells[f] = (face_cells[f, 1], -1)
+            elif face_cells[f, 1] == c:
+                face_cells[f, 1] = -1
+
+    def insert_cell(self, a: int, b: int, c: int, d: int, *, material: int = 0) -> int:
+        """A new cell on nodes ``(a, b, c, d)`` (positive orientation is the caller's duty).
+
+        Missing faces and edges are inserted (with their events, before the
+        cell's); existing faces get the cell in their free slot.
+
+        Raises:
+            WarpblobError: a node is missing, removed or repeated, or a face
+                already has a cell on both sides.
+        """
+        nodes = self._check_nodes((a, b, c, d), 4)
+        found = self._cell_faces_for(nodes)
+        i = self._stores["cell"].append(material=int(material))
+        self._link_cell(i, nodes, found)
+        self._emit("cell", "insert", i)
+        return i
+
+    # -- updates -------------------------------------------------------------------------
+
+    def update_node(self, node: int, *, rest=None, position=None) -> None:
+        """Move node ``node`` (rest and/or current position)."""
+        v = self._check(node, "node")
+        store = self._stores["node"].arrays
+        if rest is not None:
+            store["rest"][v] = self._point(rest, "rest")
+        if position is not None:
+            store["position"][v] = self._point(position, "position")
+        self._emit("node", "update", v)
+
+    def update_edge(self, edge: int, a: int, b: int) -> None:
+        """Make edge ``edge`` join nodes ``a`` and ``b`` (faces using it are the caller's business).
+
+        Raises:
+            WarpblobError: the edge or a node is missing or removed, or another
+                edge joins ``a`` and ``b``.
+        """
+        e = self._check(edge, "edge")
+        a, b = self._check_nodes((a, b), 2)
+        other = self.find_edge(a, b)
+        if other >= 0 and other != e:
+            raise WarpblobError(f"TetStructure.update_edge: nodes {a} and {b} are already joined by edge {other}")
+        old = self._stores["edge"]["nodes"][e].tolist()
+        self._stores["edge"].arrays["nodes"][e] = (a, b)
+        if other != e:
+            self._table_remove(_host_key(*old))
+            self._table_insert(_host_key(a, b), e)
+        self._note_edge(e, a, b)
+        self._emit("edge", "update", e)
+
+    def update_face(self, face: int, a: int, b: int, c: int) -> None:
+        """Make face ``face`` span nodes ``(a, b, c)``, inserting missing edges (its cells are the caller's)."""
+        f = self._check(face, "face")
+        nodes = self._check_nodes((a, b, c), 3)
+        other = self.find_face(*nodes)
+        if other >= 0 and other != f:
+            raise WarpblobError(f"TetStructure.update_face: nodes {nodes} already make face {other}")
+        edges = [self._edge_for(nodes[j], nodes[(j + 1) % 3]) for j in range(3)]
+        store = self._stores["face"].arrays
+        store["nodes"][f] = nodes
+        store["edges"][f] = edges
+        self._note_face(f, edges)
+        self._emit("face", "update", f)
+
+    def update_cell(self, cell: int, a: int, b: int, c: int, d: int, *, material: int | None = None) -> None:
+        """Give cell ``cell`` new nodes (and material): it leaves its old faces and joins (or makes) the new ones.
+
+        Faces it leaves stay, for :meth:`collect_garbage` to purge once unused.
+        """
+        i = self._check(cell, "cell")
+        nodes = self._check_nodes((a, b, c, d), 4)
+        found = self._cell_faces_for(nodes, i)
+        self._unlink_cell(i)
+        self._link_cell(i, nodes, found)
+        if material is not None:
+            self._stores["cell"].arrays["material"][i] = int(material)
+        self._emit("cell", "update", i)
+
+    def split_edge(self, edge: int, t: float) -> tuple[int, int, int]:
+        """Split ``edge`` = (n0, n1) at parameter ``t`` (SPEC section 4).
+
+        Two co-located nodes are inserted at ``n0 + t (n1 - n0)`` (rest and
+        current positions interpolated); the edge now runs n0 -> first new
+        node and a new edge runs second new node -> n1. Nothing else changes:
+        the faces and cells around the edge are the caller's business. Cutting
+        (SPEC section 6) splits every cut edge this way, one node per side of
+        the cut, then replaces each cut cell by its table's sub-tets
+        (:meth:`update_cell`, :meth:`insert_cell`) and lets
+        :meth:`collect_garbage` purge the faces left over.
+
+        Args:
+            edge: a live edge.
+            t: split parameter, strictly between 0 and 1.
+
+        Returns:
+            (first new node, second new node, new edge).
+        """
+        e = self._check(edge, "edge")
+        if not (isinstance(t, (int, float, np.floating)) and 0.0 < float(t) < 1.0):
+            raise WarpblobError(f"TetStructure.split_edge: t must lie strictly between 0 and 1, got {t!r}")
+        n0, n1 = self._stores["edge"]["nodes"][e].tolist()
+        nodes = self._stores["node"].arrays
+        t = float(t)
+        rest = nodes["rest"][n0] + t * (nodes["rest"][n1] - nodes["rest"][n0])
+        position = nodes["position"][n0] + t * (nodes["position"][n1] - nodes["position"][n0])
+        first = self.insert_node(rest, position)
+        second = self.insert_node(rest, position)
+        self.update_edge(e, n0, first)
+        return first, second, self.insert_edge(second, n1)
+
+    # -- removal and garbage collection -----------------------------------------------------
+
+    def _remove(self, kind: str, i: int) -> None:
+        self._stores[kind].arrays["alive"][i] = False
+        self._pending[kind].append(i)
+        self._emit(kind, "remove", i)
+
+    def remove_cell(self, cell: int) -> None:
+        """Remove ``cell``: flagged dead, unlinked from its faces, pending until :meth:`collect_garbage`."""
+        c = self._check(cell, "cell")
+        self._unlink_cell(c)
+        self._remove("cell", c)
+
+    def remove_face(self, face: int) -> None:
+        """Remove ``face``, which no live cell may use."""
+        f = self._check(face, "face")
+        cells = self.cells_of_face(f)
+        if cells.size:
+            raise WarpblobError(f"TetStructure.remove_face: face {f} is used by cells {cells.tolist()}")
+        self._links_dirty = True
+        self._remove("face", f)
+
+    def remove_edge(self, edge: int) -> None:
+        """Remove ``edge``, which no live face may use; it leaves the lookup table at once."""
+        e = self._check(edge, "edge")
+        faces = self.faces_of_edge(e)
+        if faces.size:
+            raise WarpblobError(f"TetStructure.remove_edge: edge {e} is used by faces {faces.tolist()}")
+        self._table_remove(_host_key(*self._stores["edge"]["nodes"][e].tolist()))
+        self._links_dirty = True
+        self._remove("edge", e)
+
+    def remove_node(self, node: int) -> None:
+        """Remove ``node``, which no live edge may use."""
+        v = self._check(node, "node")
+        edges = self.edges_of_node(v)
+        if edges.size:
+            raise WarpblobError(f"TetStructure.remove_node: node {v} is used by edges {edges.tolist()}")
+        self._remove("node", v)
+
+    def collect_garbage(self) -> dict[str, np.ndarray]:
+        """Purge unreferenced entities, compact every kind and remap every link.
+
+        Faces no live cell uses, then edges no live face or cell uses, then
+        nodes no live edge, face or cell uses are removed (with "remove"
+        events); live entities are renumbered in their old order, links and
+        the lookup table rebuilt, the pending lists emptied, and a "compact"
+        event fires per kind.
+
+        Returns:
+            Per kind, the (old slot count,) int32 map from old to new index
+            (-1 for removed entities); also kept as :attr:`last_remap`.
+        """
+        st = self._stores
+        cells, faces, edges, nodes = st["cell"], st["face"], st["edge"], st["node"]
+        live_cells = cells["alive"]
+
+        used = np.zeros(faces.count, dtype=bool)
+        used[cells["faces"][live_cells].ravel()] = True
+        self._purge("face", faces["alive"] & ~used)
+
+        used = np.zeros(edges.count, dtype=bool)
+        used[faces["edges"][faces["alive"]].ravel()] = True
+        used[cells["edges"][live_cells].ravel()] = True
+        self._purge("edge", edges["alive"] & ~used)
+
+        used = np.zeros(nodes.count, dtype=bool)
+        used[edges["nodes"][edges["alive"]].ravel()] = True
+        used[faces["nodes"][faces["alive"]].ravel()] = True
+        used[cells["nodes"][live_cells].ravel()] = True
+        self._purge("node", nodes["alive"] & ~used)
+
+        keep = {kind: st[kind]["alive"].copy() for kind in KINDS}
+        maps = {}
+        for kind, alive in keep.items():
+            maps[kind] = np.full(len(alive), -1, dtype=np.int32)
+            maps[kind][alive] = np.arange(np.count_nonzero(alive), dtype=np.int32)
+        n, e, f, c = (keep[kind] for kind in KINDS)
+        nodes.load(rest=nodes["rest"][n], position=nodes["position"][n], alive=np.ones(n.sum(), dtype=bool))
+        edges.load(nodes=_remap(maps["node"], edges["nodes"][e]), alive=np.ones(e.sum(), dtype=bool))
+        faces.load(
+            nodes=_remap(maps["node"], faces["nodes"][f]),
+            edges=_remap(maps["edge"], faces["edges"][f]),
+            cells=_remap(maps["cell"], faces["cells"][f]),
+            alive=np.ones(f.sum(), dtype=bool),
+        )
+        cells.load(
+            nodes=_remap(maps["node"], cells["nodes"][c]),
+            faces=_remap(maps["face"], cells["faces"][c]),
+            edges=_remap(maps["edge"], cells["edges"][c]),
+            material=cells["material"][c],
+            alive=np.ones(c.sum(), dtype=bool),
+        )
+        self._pending = {k: [] for k in KINDS}
+        self._rebuild(wp.get_device("cpu"), None)
+        self.last_remap = maps
+        for kind in KINDS:
+            self._emit(kind, "compact", st[kind].count)
+        return maps
+
+    def _purge(self, kind: str, mask: np.ndarray) -> None:
+        ids = np.flatnonzero(mask)
+        self._stores[kind].arrays["alive"][ids] = False
+        for i in ids.tolist() if self._observers else ():
+            self._emit(kind, "remove", i)
+
+    # -- consistency, export -------------------------------------------------------------------
+
+    def check(self) -> None:
+        """Verify every invariant (vectorized); raise :class:`WarpblobError` listing the broken ones.
+
+        Live entities reference only live entities; each face's edges join
+        its nodes; each cell's faces and edges are those of its nodes; face
+        cell slots and cell faces agree both ways; the CSR links equal the
+        inverse of the top-down links; the lookup table finds every live edge
+        and holds nothing else.
+        """
+        if self._links_dirty:
+            self.rebuild_links(device="cpu")
+        st = self._stores
+        problems = []
+
+        def refs(kind, column, target):
+            live = st[kind]["alive"]
+            r = st[kind][column][live]
+            ok = (r >= 0) & (r < st[target].count)
+            ok[ok] = st[target]["alive"][r[ok]]
+            if not ok.all():
+                problems.append(f"{kind} {np.flatnonzero(live)[np.argmin(ok.all(axis=1))]}: {column} not all live")
+            return r, live
+
+        en, _ = refs("edge", "nodes", "node")
+        fn, flive = refs("face", "nodes", "node")
+        fe, _ = refs("face", "edges", "edge")
+        cn, clive = refs("cell", "nodes", "node")
+        cf, _ = refs("cell", "faces", "face")
+        ce, _ = refs("cell", "edges", "edge")
+        if problems:
+            raise WarpblobError("TetStructure.check: " + "; ".join(problems))
+        edge_nodes = st["edge"]["nodes"]
+        if np.any(np.sort(edge_nodes[fe], axis=2) != np.sort(np.stack([fn, np.roll(fn, -1, axis=1)], axis=2), axis=2)):
+            problems.append("a face's edges do not join its nodes")
+        if np.any(np.sort(edge_nodes[ce], axis=2) != np.sort(cn[:, TET_EDGES], axis=2)):
+            problems.append("a cell's edges are not those of its nodes")
+        if np.any(np.sort(st["face"]["nodes"][cf], axis=2) != np.sort(cn[:, TET_FACES], axis=2)):
+            problems.append("a cell's faces are not those of its nodes")
+        fc = st["face"]["cells"][flive]
+        cell_ids = np.flatnonzero(clive)
+        if np.any((fc[:, 1] >= 0) & (fc[:, 0] < 0)) or np.any((fc >= 0) & ~st["cell"]["alive"][np.maximum(fc, 0)]):
+            problems.append("a face's cell slots hold a removed cell or a gap")
+        pairs_up = np.sort(np.flatnonzero(flive)[np.nonzero(fc >= 0)[0]] * 2**31 + fc[fc >= 0])
+        pairs_down = np.sort(cf.ravel().astype(np.int64) * 2**31 + np.repeat(cell_ids, 4))
+        if not np.array_equal(pairs_up, pairs_down):
+            problems.append("face cell slots and cell faces disagree")
+        edge_ids = np.flatnonzero(st["edge"]["alive"])
+        expect = np.sort(en.ravel().astype(np.int64) * 2**31 + np.repeat(edge_ids, 2))
+        got = np.repeat(np.arange(len(self._node_edge_offsets) - 1), np.diff(self._node_edge_offsets)) * 2**31
+        if not np.array_equal(np.sort(got + self._node_edge_list), expect):
+            problems.append("node -> edges links disagree with edge nodes")
+        face_ids = np.flatnonzero(flive)
+        expect = np.sort(fe.ravel().astype(np.int64) * 2**31 + np.repeat(face_ids, 3))
+        got = np.repeat(np.arange(len(self._edge_face_offsets) - 1), np.diff(self._edge_face_offsets)) * 2**31
+        if not np.array_equal(np.sort(got + self._edge_face_list), expect):
+            problems.append("edge -> faces links disagree with face edges")
+        if not np.array_equal(self.find_edges(en, device="cpu"), edge_ids):
+            problems.append("the lookup table misses a live edge")
+        if np.count_nonzero(self._table_keys >= 0) != len(edge_ids):
+            problems.append("the lookup table holds removed edges")
+        if problems:
+            raise WarpblobError("TetStructure.check: " + "; ".join(problems))
+
+    def to_warp(self, device=None) -> TetStructureArrays:
+        """The structure's arrays on ``device`` as a :class:`TetStructureArrays` (links rebuilt first if needed)."""
+        from ..field._engine import resolve_device
+
+        dev = resolve_device(device)
+        if self._links_dirty:
+            self._rebuild(dev, None)
+        st = self._stores
+        out = TetStructureArrays()
+
+        def put(values, dtype):
+            return wp.array(np.ascontiguousarray(values), dtype=dtype, device=dev)
+
+        out.node_rest = put(st["node"]["rest"], wp.vec3)
+        out.node_position = put(st["node"]["position"], wp.vec3)
+        out.node_alive = put(st["node"]["alive"].view(np.uint8), wp.uint8)
+        out.edge_nodes = put(st["edge"]["nodes"], wp.vec2i)
+        out.edge_alive = put(st["edge"]["alive"].view(np.uint8), wp.uint8)
+        out.face_nodes = put(st["face"]["nodes"], wp.vec3i)
+        out.face_edges = put(st["face"]["edges"], wp.vec3i)
+        out.face_cells = put(st["face"]["cells"], wp.vec2i)
+        out.face_alive = put(st["face"]["alive"].view(np.uint8), wp.uint8)
+        out.cell_nodes = put(st["cell"]["nodes"], wp.vec4i)
+        out.cell_faces = put(st["cell"]["faces"], wp.vec4i)
+        out.cell_edges = put(st["cell"]["edges"], vec6i)
+        out.cell_material = put(st["cell"]["material"], wp.int32)
+        out.cell_alive = put(st["cell"]["alive"].view(np.uint8), wp.uint8)
+        out.node_edge_offsets = put(self._node_edge_offsets, wp.int32)
+        out.node_edge_list = put(self._node_edge_list, wp.int32)
+        out.edge_face_offsets = put(self._edge_face_offsets, wp.int32)
+        out.edge_face_list = put(self._edge_face_list, wp.int32)
+        out.edge_table_keys = put(self._table_keys, wp.int64)
+        out.edge_table_values = put(self._table_values, wp.int32)
+        out.edge_table_bits = self._table_bits
+        return out
+
+    def to_tetmesh(self, *, rest: bool = False) -> TetMesh:
+        """The live cells as a :class:`TetMesh` on the nodes they use (current positions, or rest ones)."""
+        st = self._stores
+        live = st["cell"]["alive"]
+        used, tets = np.unique(st["cell"]["nodes"][live], return_inverse=True)
+        points = st["node"]["rest" if rest else "position"][used]
+        return TetMesh(points, tets.reshape(-1, 4), st["cell"]["material"][live], stats={"source": "TetStructure"})
