@@ -341,6 +341,15 @@ def evaluate_primitive(m: ModelArrays, node: int, q: wp.vec3):
     return out
 
 
+@wp.func
+def primitive_value(m: ModelArrays, node: int, q: wp.vec3):
+    """F of primitive ``node`` at ``q`` alone (the rest of the vec7 is 0)."""
+    r = m.ref[node]
+    x = apply_inverse(m.inverse[r], q)
+    d = primitive_distance(m.kind[node], x, m.params[node], m.data, m.data_start[r])[0]
+    return vec7(falloff(d / m.radius[r])[0], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
 # --------------------------------------------------------------------------
 # warps: point forward into the child's frame, gradient back
 
@@ -590,11 +599,12 @@ def next_ball_operand(m: ModelArrays, gi: int, q: wp.vec3, radius: float, cell: 
     return wp.vec3i(0, 0, -1)
 
 
-def make_evaluate(prune: bool, interval: bool = False):
+def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True):
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
-    Point mode (``interval`` False) returns (F, grad F, colour) at ``p``;
-    ``radius`` is ignored. Interval mode returns (F_min, F_max, 0...) over the
+    Point mode (``interval`` False) returns (F, grad F, colour) at ``p``
+    (F alone, the rest 0, when ``derivatives`` is False; F is bit-identical
+    either way); ``radius`` is ignored. Interval mode returns (F_min, F_max, 0...) over the
     ball of ``radius`` around ``p``: it always prunes (by ball-box overlap),
     treats a warp whose box meets the ball as unknown ([0, inf)), and visits
     the operands of a wide operator listed in the grid cells the ball overlaps.
@@ -635,8 +645,10 @@ def make_evaluate(prune: bool, interval: bool = False):
                 elif kind < K_PRIM_END:
                     if wp.static(interval):
                         r = interval_primitive(m, i, q, radius)
-                    else:
+                    elif wp.static(derivatives):
                         r = evaluate_primitive(m, i, q)
+                    else:
+                        r = primitive_value(m, i, q)
                     descending = False
                 elif kind >= K_TWIST:
                     if wp.static(interval):
@@ -742,7 +754,7 @@ def make_evaluate(prune: bool, interval: bool = False):
 
 def make_kernel(prune: bool, derivatives: bool):
     """Kernel evaluating points[offset : offset + dim] (range-split on the CPU)."""
-    evaluate = make_evaluate(prune)
+    evaluate = make_evaluate(prune, derivatives=derivatives)
 
     @wp.kernel(enable_backward=False, module="unique")
     def evaluate_points_kernel(

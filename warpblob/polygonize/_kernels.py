@@ -64,6 +64,7 @@ def make_kernels():
     """Build the polygonizer kernels (compiled once per process and device)."""
     bound = make_evaluate(True, interval=True)
     value = make_evaluate(True)
+    value_only = make_evaluate(True, derivatives=False)
 
     @wp.kernel(enable_backward=False, module="unique")
     def classify_blocks_kernel(m: ModelArrays, g: Grid, iso: float, offset: int, flags: wp.array(dtype=wp.int32)):
@@ -141,7 +142,7 @@ def make_kernels():
                                     proven = st
         if needed:
             p = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
-            samples[tid] = value(m, p, 0.0)[0]
+            samples[tid] = value_only(m, p, 0.0)[0]
             evaluated[tid] = 1
         else:
             samples[tid] = wp.where(proven == 1, iso + 0.5, iso - 0.5)
