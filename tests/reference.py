@@ -476,7 +476,6 @@ def _primitive(node, p):
 
 def _eval(node, p):
     """The :class:`Result` of ``node`` at the rows of ``p`` (float64)."""
-    n = len(p)
     res = _primitive(node, p)
     if res is not None:
         return res

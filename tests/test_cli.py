@@ -89,8 +89,6 @@ def test_demo_writes_stage_pictures_and_summary(tmp_path):
     for name in ("peanut_slices.png", "peanut_mesh.png"):
         png = (out / name).read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
-    import warpblob.usd
-
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(out / "warpblob_demo.usdc"))
@@ -101,8 +99,6 @@ def test_demo_writes_stage_pictures_and_summary(tmp_path):
 
 
 def test_polygonize_writes_a_usd_mesh(tmp_path):
-    import warpblob.usd
-
     out = tmp_path / "tumor.usda"
     r = run_cli("polygonize", "tumor", "--cellsize", "0.1", "--out", str(out), "--png", str(tmp_path / "t.png"))
     assert r.returncode == 0, r.stderr

@@ -36,7 +36,7 @@ import numpy as np
 from ._errors import ModelError
 from .tree import _kinds
 from .tree._node import Node, Transform, box_intersection, box_is_empty, box_transform, box_union
-from .tree._operators import Difference, Operator, SmoothBlend, Warp
+from .tree._operators import Operator, Warp
 from .tree._primitives import Primitive
 
 __all__ = ["LinearModel", "linearize", "SLOTS", "WARP_NESTING", "WIDE"]

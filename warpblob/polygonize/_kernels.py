@@ -529,16 +529,6 @@ def make_kernels():
 
 
 @wp.kernel(enable_backward=False)
-def compact_kernel(
-    flags: wp.array(dtype=wp.int32), scanned: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.int32)
-):
-    """``out[scanned[i]] = i`` for every flagged ``i`` (exclusive scan)."""
-    tid = wp.tid() + offset
-    if flags[tid] != 0:
-        out[scanned[tid]] = tid
-
-
-@wp.kernel(enable_backward=False)
 def compact_triangles_kernel(
     triangles: wp.array(dtype=wp.vec3i),
     keep: wp.array(dtype=wp.int32),

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
 import warp as wp
 
 from .._errors import ResourceError, WarpblobError
+from .._stages import available_memory, check_memory, compact, scan
 from .._linearize import linearize
 from .._parallel import launch
 from ..field._engine import model_arrays, resolve_device
@@ -38,47 +38,6 @@ def _device_tables(device):
         edges = wp.array(info, dtype=wp.vec4i, device=device)
         _CACHE[key] = (table, faces, edges)
     return _CACHE[key]
-
-
-def available_memory(device) -> int:
-    """Bytes that can still be allocated on ``device`` (host RAM for the CPU)."""
-    device = wp.get_device(device)
-    if device.is_cuda:
-        return int(device.free_memory)
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
-
-
-def _check_memory(stage: str, need: int, limit: int) -> None:
-    if need > limit:
-        raise ResourceError(
-            f"polygonize: the {stage} stage needs an estimated {need / 2**20:.1f} MiB, "
-            f"more than the {limit / 2**20:.1f} MiB available; use a larger cellsize or smaller bounds"
-        )
-
-
-def _scan(counts: wp.array) -> tuple[wp.array, int]:
-    """Exclusive prefix sum of int32 ``counts`` and the total (one host sync)."""
-    offsets = wp.empty_like(counts)
-    if counts.shape[0] == 0:
-        return offsets, 0
-    wp.utils.array_scan(counts, offsets, inclusive=False)
-    # host sync: the total sizes the next stage's allocation
-    last = int(offsets[-1:].numpy()[0]) + int(counts[-1:].numpy()[0])
-    return offsets, last
-
-
-def _compact(flags: wp.array, device, threads) -> wp.array:
-    offsets, total = _scan(flags)
-    out = wp.empty(total, dtype=wp.int32, device=device)
-    launch(_kernels.compact_kernel, flags.shape[0], [flags, offsets], [out], device, threads)
-    return out
 
 
 def _grid(lm, cellsize, bounds):
@@ -190,7 +149,7 @@ def polygonize(
         return empty
     g, cells, blocks = grid
     n_blocks = int(np.prod(blocks))
-    _check_memory("block classification", n_blocks * 16, limit)
+    check_memory("polygonize", "block classification", n_blocks * 16, limit)
     if n_blocks > np.iinfo(np.int32).max // _kernels.SAMPLES:
         raise ResourceError(f"polygonize: {n_blocks} blocks exceed the int32 index range; use a larger cellsize")
     kernels = _kernel_set()
@@ -200,7 +159,7 @@ def polygonize(
     # 1. block rejection by interval bounds
     flags = wp.empty(n_blocks, dtype=wp.int32, device=dev)
     launch(kernels["classify"], n_blocks, [m, g, float(iso)], [flags], dev, threads)
-    active = _compact(flags, dev, threads)
+    active = compact(flags, dev, threads)
     n_active = active.shape[0]
     block_map = wp.full(n_blocks, -1, dtype=wp.int32, device=dev)
     launch(_kernels.block_map_kernel, n_active, [active], [block_map], dev, threads)
@@ -210,7 +169,7 @@ def polygonize(
     # 2. field at the vertices of active blocks
     n_samples = n_active * _kernels.SAMPLES
     n_cells = n_active * _kernels.CELLS
-    _check_memory("sampling", n_samples * 4 + n_cells * 4 * 7, limit)
+    check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 7, limit)
     n_subs = n_active * _kernels.SUB_SIDE**3
     states = wp.empty(n_subs, dtype=wp.int32, device=dev)
     launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
@@ -233,14 +192,14 @@ def polygonize(
         dev,
         threads,
     )
-    vertex_offsets, n_edge_vertices = _scan(vertex_counts)
-    triangle_offsets, n_triangles = _scan(triangle_counts)
-    centre_offsets, n_centres = _scan(centre_counts)
+    vertex_offsets, n_edge_vertices = scan(vertex_counts)
+    triangle_offsets, n_triangles = scan(triangle_counts)
+    centre_offsets, n_centres = scan(centre_counts)
     n_vertices = n_edge_vertices + n_centres
     lap("count")
 
     # 4. one vertex per crossed edge, on the surface (then loop centres)
-    _check_memory("output", n_vertices * 40 + n_triangles * 24, limit)
+    check_memory("polygonize", "output", n_vertices * 40 + n_triangles * 24, limit)
     positions = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
     normals = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
     colors = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
@@ -280,7 +239,7 @@ def polygonize(
     # 6. drop zero-area triangles
     keep = wp.empty(n_triangles, dtype=wp.int32, device=dev)
     launch(kernels["degenerate"], n_triangles, [positions, triangles], [keep], dev, threads)
-    keep_offsets, n_kept = _scan(keep)
+    keep_offsets, n_kept = scan(keep)
     if n_kept < n_triangles:
         kept = wp.empty(n_kept, dtype=wp.vec3i, device=dev)
         launch(_kernels.compact_triangles_kernel, n_triangles, [triangles, keep, keep_offsets], [kept], dev, threads)
