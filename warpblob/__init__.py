@@ -24,6 +24,7 @@ from .field import color, evaluate, field, gradient
 from . import mesh
 from .mesh import SurfaceMesh, TetMesh, TetQuality, TetStructure, quality
 from .polygonize import polygonize
+from .tetrahedralize import tetrahedralize
 from .tree import (
     ISO_DISTANCE,
     ISO_VALUE,
@@ -100,6 +101,7 @@ __all__ = [
     "color",
     "evaluate",
     "polygonize",
+    "tetrahedralize",
     "SurfaceMesh",
     "TetMesh",
     "TetQuality",

@@ -176,7 +176,8 @@ class LinearModel:
     (int32, one past the subtree), ``parent`` (int32, -1 at the root), ``ref``
     (int32: row in the placed table for primitives and warps, grid index for
     wide operators, else -1), ``lower``/``upper`` (float32 (n, 3), box in the
-    parent frame), ``params`` (float32 (n, 4)).
+    parent frame), ``params`` (float32 (n, 4); a wide operator keeps its
+    operand count in ``params[:, 1]``).
 
     Placed table (primitives and warps, length ``placed_count``): ``inverse``
     (float32 (m, 3, 4), parent frame to local), ``stretch`` (float32, the
@@ -359,6 +360,7 @@ def linearize(model: Node) -> LinearModel:
     for k, n in enumerate(nodes):
         if n.code in _kinds.SPARSE_KINDS and len(n.children) >= WIDE and not empty[k]:
             kids = [index[id(c)] for c in n.children]
+            params[k, 1] = len(kids)  # operand count: interval queries compare it with the cells a ball spans
             kid_boxes = np.stack([np.stack([lower[c], upper[c]]) for c in kids])
             dims, inv_cell, offs, its = _build_grid((lower[k], upper[k]), kid_boxes, np.array(kids))
             ref[k] = len(g_lower)

@@ -599,6 +599,14 @@ def next_ball_operand(m: ModelArrays, gi: int, q: wp.vec3, radius: float, cell: 
     return wp.vec3i(0, 0, -1)
 
 
+@wp.func
+def ball_cell_count(m: ModelArrays, gi: int, q: wp.vec3, radius: float):
+    """Number of cells of grid ``gi`` that the ball's box overlaps."""
+    c0 = grid_cell_of(m, gi, q - wp.vec3(radius))
+    c1 = grid_cell_of(m, gi, q + wp.vec3(radius))
+    return (c1[0] - c0[0] + 1) * (c1[1] - c0[1] + 1) * (c1[2] - c0[2] + 1)
+
+
 def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True):
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
@@ -610,6 +618,18 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
     the operands of a wide operator listed in the grid cells the ball overlaps.
     """
     use_grid = prune
+
+    @wp.func
+    def walks_grid(m: ModelArrays, node: int, q: wp.vec3, radius: float):
+        """Whether operator ``node`` visits its operands through its grid: always
+        for a point; for a ball only while it overlaps fewer cells than the
+        operator has operands (``params[1]``), else a plain scan is cheaper."""
+        gi = m.ref[node]
+        if gi < 0:
+            return False
+        if wp.static(interval):
+            return float(ball_cell_count(m, gi, q, radius)) < m.params[node][1]
+        return True
 
     @wp.func
     def get_slot(sv: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
@@ -659,7 +679,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                         saved[wsp] = q
                         q = warp_forward(m, i, q)
                         i = i + 1
-                elif wp.static(use_grid) and m.ref[i] >= 0:
+                elif wp.static(use_grid) and walks_grid(m, i, q, radius):
                     # wide sparse operator: visit the operands listed in the grid
                     # cell of q (point mode) or the cells the ball overlaps (interval)
                     gi = m.ref[i]
@@ -703,7 +723,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                     prm = m.params[par]
                     wide = bool(False)
                     if wp.static(use_grid):
-                        wide = m.ref[par] >= 0
+                        wide = walks_grid(m, par, q, radius)
                     first = i == par + 1 and not wide
                     if first:
                         sp += 1
@@ -750,6 +770,70 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
         return r
 
     return evaluate
+
+
+def make_segment_root(evaluate):
+    """A root search on segments, for polygonization and isosurface stuffing.
+
+    ``evaluate`` is a point-mode traversal with derivatives (:func:`make_evaluate`).
+    The returned ``segment_root(m, p0, step, f0, f1, iso, tolerance,
+    max_iterations) -> (vec7 r, t, evaluations)`` finds ``t`` in [0, 1] with
+    ``|F(p0 + t step) - iso| <= tolerance``, given the values ``f0``, ``f1``
+    (minus ``iso``, of opposite sides) at the ends: Newton along the segment
+    with the analytic derivative, safeguarded by the bracket (Press et al.'s
+    rtsafe: a step that leaves the bracket or fails to halve the previous one
+    falls back to bisection). ``r`` is the evaluation at ``t`` (value,
+    gradient, colour); if ``max_iterations`` run out, the best point found.
+    """
+
+    @wp.func
+    def segment_root(
+        m: ModelArrays,
+        p0: wp.vec3,
+        step: wp.vec3,
+        f0: float,
+        f1: float,
+        iso: float,
+        tolerance: float,
+        max_iterations: int,
+    ):
+        ta = float(0.0)
+        tb = float(1.0)
+        fa = f0
+        t = fa / (fa - f1)
+        dx_old = float(1.0)
+        best = vec7()
+        best_t = t
+        best_f = float(1.0e30)
+        count = int(0)
+        for _it in range(max_iterations):
+            r = evaluate(m, p0 + t * step, 0.0)
+            count += 1
+            ft = r[0] - iso
+            if wp.abs(ft) < best_f:
+                best_f = wp.abs(ft)
+                best = r
+                best_t = t
+            if wp.abs(ft) <= tolerance:
+                break
+            if (ft >= 0.0) == (fa >= 0.0):
+                ta = t
+                fa = ft
+            else:
+                tb = t
+            slope = r[1] * step[0] + r[2] * step[1] + r[3] * step[2]
+            tn = float(-1.0)
+            if slope != 0.0:
+                tn = t - ft / slope
+            if tn > ta and tn < tb and wp.abs(tn - t) < 0.5 * dx_old:
+                dx_old = wp.abs(tn - t)
+                t = tn
+            else:
+                dx_old = 0.5 * (tb - ta)
+                t = 0.5 * (ta + tb)
+        return best, best_t, count
+
+    return segment_root
 
 
 def make_kernel(prune: bool, derivatives: bool):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..field._kernels import ModelArrays, make_evaluate, vec7
+from ..field._kernels import ModelArrays, make_evaluate, make_segment_root, vec7
 from ._tables import APEX
 
 BLOCK = 8  # cells per block side
@@ -65,6 +65,7 @@ def make_kernels():
     bound = make_evaluate(True, interval=True)
     value = make_evaluate(True)
     value_only = make_evaluate(True, derivatives=False)
+    segment_root = make_segment_root(value)
 
     @wp.kernel(enable_backward=False, module="unique")
     def classify_blocks_kernel(m: ModelArrays, g: Grid, iso: float, offset: int, flags: wp.array(dtype=wp.int32)):
@@ -269,46 +270,7 @@ def make_kernels():
                     f1 = samples[base + sample_index(i, j + 1, k)] - iso
                 else:
                     f1 = samples[base + sample_index(i, j, k + 1)] - iso
-                # Newton along the edge with the analytic derivative, safeguarded by
-                # the bracket [ta, tb] (Press et al.'s rtsafe): a step that leaves the
-                # bracket or fails to halve the previous one falls back to bisection
-                ta = float(0.0)
-                tb = float(1.0)
-                fa = f0
-                t = fa / (fa - f1)
-                dx_old = float(1.0)
-                r = vec7()
-                best = vec7()
-                best_t = t
-                best_f = float(1.0e30)
-                count = int(0)
-                for _it in range(max_iterations):
-                    r = value(m, p0 + t * step, 0.0)
-                    count += 1
-                    ft = r[0] - iso
-                    if wp.abs(ft) < best_f:
-                        best_f = wp.abs(ft)
-                        best = r
-                        best_t = t
-                    if wp.abs(ft) <= tolerance:
-                        break
-                    if (ft >= 0.0) == (fa >= 0.0):
-                        ta = t
-                        fa = ft
-                    else:
-                        tb = t
-                    slope = r[1] * step[0] + r[2] * step[1] + r[3] * step[2]
-                    tn = float(-1.0)
-                    if slope != 0.0:
-                        tn = t - ft / slope
-                    if tn > ta and tn < tb and wp.abs(tn - t) < 0.5 * dx_old:
-                        dx_old = wp.abs(tn - t)
-                        t = tn
-                    else:
-                        dx_old = 0.5 * (tb - ta)
-                        t = 0.5 * (ta + tb)
-                r = best
-                t = best_t
+                r, t, count = segment_root(m, p0, step, f0, f1, iso, tolerance, max_iterations)
                 grad = wp.vec3(r[1], r[2], r[3])
                 positions[out] = p0 + t * step
                 normals[out] = -wp.normalize(grad)

@@ -173,6 +173,7 @@ def polygonize(
     n_subs = n_active * _kernels.SUB_SIDE**3
     states = wp.empty(n_subs, dtype=wp.int32, device=dev)
     launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
+    lap("classify_subblocks")
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
     evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
     launch(kernels["sample"], n_samples, [m, g, float(iso), active, states], [samples, evaluated], dev, threads)

@@ -1,0 +1,352 @@
+"""Isosurface stuffing: the generated stencil table, and the invariants of the meshes it makes."""
+
+import math
+
+import numpy as np
+import pytest
+
+import warpblob as wb
+from warpblob.mesh import SurfaceMesh
+from warpblob.mesh._tetmesh import TET_FACES
+from warpblob.tetrahedralize import ALPHA_LONG, ALPHA_SHORT, _tables, tetrahedralize
+
+PAPER_MIN_DIHEDRAL = 10.7  # degrees, Labelle & Shewchuk 2007, for (ALPHA_LONG, ALPHA_SHORT)
+PAPER_MAX_DIHEDRAL = 164.8
+SPHERE_RADIUS = 0.4541  # iso-surface of a Point primitive of radius 1
+
+# the 14 lattice edge directions from a point, in half cells: 6 long, 8 short
+_DIRECTIONS = np.array(
+    [[2, 0, 0], [-2, 0, 0], [0, 2, 0], [0, -2, 0], [0, 0, 2], [0, 0, -2]]
+    + [[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)],
+    dtype=float,
+)
+
+
+# ---------------------------------------------------------------------------
+# helpers
+
+
+def _stencils():
+    """(type, vertices (4, 3) half cells, labels, stencil refs (k, 4)) for every entry of the table."""
+    counts, refs = _tables.build_stencils()
+    for t, x in enumerate(_tables.tet_types()):
+        for pattern in range(_tables.PATTERNS):
+            yield t, x.astype(float), _tables.pattern_labels(pattern), refs[t, pattern, : counts[t, pattern]]
+
+
+def _edge_alphas(x):
+    """(6,) warping threshold of each tet edge: long edges have squared length 4 half cells."""
+    return np.array([ALPHA_LONG if np.sum((x[u] - x[v]) ** 2) == 4 else ALPHA_SHORT for u, v in _tables.EDGES])
+
+
+def _admissible_cuts(rng, x, n, extremes=0.5):
+    """(n, 6) cut positions on the tet's edges that warp neither end: in [alpha, 1 - alpha],
+    at an end of that range with probability ``extremes`` (where the worst angles live)."""
+    a = _edge_alphas(x)
+    t = rng.uniform(a, 1.0 - a, size=(n, 6))
+    ends = np.where(rng.random((n, 6)) < 0.5, a, 1.0 - a)
+    return np.where(rng.random((n, 6)) < extremes, ends, t)
+
+
+def _positions(x, cuts):
+    """(n, 10, 3) positions of the stencil references (4 vertices, 6 cut points) for (n, 6) ``cuts``."""
+    return np.stack([_tables.ref_positions(x, t) for t in cuts])
+
+
+def _volumes(p):
+    """Signed volumes of (..., 4, 3) tets."""
+    a, b, c = p[..., 1, :] - p[..., 0, :], p[..., 2, :] - p[..., 0, :], p[..., 3, :] - p[..., 0, :]
+    return np.einsum("...i,...i->...", a, np.cross(b, c)) / 6.0
+
+
+def _dihedrals(p):
+    """(..., 6) dihedral angles, degrees, of (..., 4, 3) positive tets: pi minus the angle of two outward normals."""
+    normals = []
+    for f in TET_FACES:
+        n = np.cross(p[..., f[1], :] - p[..., f[0], :], p[..., f[2], :] - p[..., f[0], :])
+        normals.append(n / np.linalg.norm(n, axis=-1, keepdims=True))
+    out = [
+        180.0 - np.degrees(np.arccos(np.clip(np.einsum("...i,...i->...", normals[i], normals[j]), -1.0, 1.0)))
+        for i in range(4)
+        for j in range(i + 1, 4)
+    ]
+    return np.stack(out, axis=-1)
+
+
+def _winding(points, triangles):
+    """Winding numbers of (P, 3) points about a closed surface of (T, 3, 3) triangles (van Oosterom-Strackee)."""
+    a = triangles[None, :, 0, :] - points[:, None, :]
+    b = triangles[None, :, 1, :] - points[:, None, :]
+    c = triangles[None, :, 2, :] - points[:, None, :]
+    la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
+    num = np.einsum("pti,pti->pt", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("pti,pti->pt", a, b) * lc + np.einsum("pti,pti->pt", a, c) * lb
+    den += np.einsum("pti,pti->pt", b, c) * la
+    return (2.0 * np.arctan2(num, den)).sum(axis=1) / (4.0 * math.pi)
+
+
+def _contains(points, tet):
+    """Whether each of (P, 3) points lies in the (4, 3) tet (barycentric coordinates all >= 0)."""
+    m = np.column_stack([tet[1] - tet[0], tet[2] - tet[0], tet[3] - tet[0]])
+    lam = np.linalg.solve(m, (points - tet[0]).T).T
+    return np.all(lam >= 0.0, axis=1) & (lam.sum(axis=1) <= 1.0)
+
+
+def _oriented_key(tri):
+    """(sorted refs, +1/-1 orientation) of a triangle given as 3 refs."""
+    order = np.argsort(tri)
+    sign = 1 if tuple(order) in ((0, 1, 2), (1, 2, 0), (2, 0, 1)) else -1
+    return tuple(int(tri[i]) for i in order), sign
+
+
+def _boundary(tets):
+    """Oriented boundary triangles (refs) of a set of positive tets, internal faces cancelled."""
+    chain = {}
+    for tet in tets:
+        for f in TET_FACES:
+            key, sign = _oriented_key([tet[i] for i in f])
+            chain[key] = chain.get(key, 0) + sign
+    out = []
+    for key, sign in chain.items():
+        assert abs(sign) <= 1, "a face is used twice with the same orientation"
+        if sign:
+            out.append(key if sign > 0 else (key[0], key[2], key[1]))
+    return out
+
+
+def _face_polygons(labels):
+    """Inside part of each outward face of the lattice tet, as a ref polygon (clipped independently here)."""
+    polys = []
+    for face in TET_FACES:
+        poly = []
+        for s in range(3):
+            u, v = int(face[s]), int(face[(s + 1) % 3])
+            if labels[u] >= 0:
+                poly.append(u)
+            if labels[u] * labels[v] < 0:
+                poly.append(4 + _tables.EDGES.index((min(u, v), max(u, v))))
+        if len(poly) >= 3:
+            polys.append(poly)
+    return polys
+
+
+def _vertex_manifold(faces):
+    """Every vertex of a closed triangle surface has a link that is one cycle (no pinched vertices)."""
+    nxt = {}
+    for a, b, c in np.vstack([faces, faces[:, [1, 2, 0]], faces[:, [2, 0, 1]]]).tolist():
+        nxt.setdefault(a, {})[b] = c
+    for ring in nxt.values():
+        start = next(iter(ring))
+        cur, steps = ring[start], 1
+        while cur != start and cur in ring and steps <= len(ring):
+            cur, steps = ring[cur], steps + 1
+        if cur != start or steps != len(ring):
+            return False
+    return True
+
+
+def _check_mesh(model, mesh, *, volume_tolerance=1e-6):
+    """The invariants every stuffed mesh must satisfy; returns its quality."""
+    assert mesh.tet_count > 0
+    q = mesh.quality()
+    assert q.inverted_count == 0, "inverted or degenerate tets"
+    assert q.dihedral_min >= PAPER_MIN_DIHEDRAL, f"min dihedral {q.dihedral_min:.3f} deg"
+    assert q.dihedral_max <= PAPER_MAX_DIHEDRAL, f"max dihedral {q.dihedral_max:.3f} deg"
+    assert mesh.is_conforming()
+    faces = mesh.surface_faces()
+    surface = SurfaceMesh(mesh.nodes, faces, np.zeros_like(mesh.nodes), np.zeros_like(mesh.nodes))
+    assert surface.is_closed_manifold(), "boundary edges are not each in two consistently oriented faces"
+    assert _vertex_manifold(faces), "a boundary vertex is pinched"
+    boundary = np.unique(faces)
+    f = wb.field(model, mesh.nodes[boundary])
+    assert np.abs(f - 0.5).max() <= 1e-4, "a boundary node is off the iso-surface"
+    # the tets fill exactly the solid their boundary encloses: no overlaps, no gaps
+    assert mesh.volume() == pytest.approx(surface.volume(), rel=volume_tolerance)
+    assert mesh.material is not None and np.all(mesh.material == 0)
+    return q
+
+
+# ---------------------------------------------------------------------------
+# the stencil table
+
+
+def test_table_has_a_stencil_for_every_pattern():
+    for _, _, labels, refs in _stencils():
+        if max(labels) < 1:
+            assert len(refs) == 0
+        elif min(labels) > -1:
+            assert refs.tolist() == [[0, 1, 2, 3]]
+        else:
+            assert 1 <= len(refs) <= 3
+            allowed = {v for v in range(4) if labels[v] >= 0}
+            allowed |= {4 + e for e, (u, v) in enumerate(_tables.EDGES) if labels[u] * labels[v] < 0}
+            assert set(refs.ravel().tolist()) <= allowed
+
+
+def test_lattice_tets_are_positive_and_fill_the_cube_pattern():
+    x = _tables.tet_types().astype(float)
+    vols = _volumes(x)
+    assert np.allclose(vols, 2.0 / 3.0)  # a BCC tet is 1/12 of a cube of side 2 half cells
+    owners, slots = _tables.edge_table()
+    vt = _tables.vertex_table()
+    for t in range(_tables.TET_TYPES):
+        for e, (u, v) in enumerate(_tables.EDGES):
+            owner = owners[t, e]
+            assert owner.tolist() in (vt[t, u].tolist(), vt[t, v].tolist())
+            assert 0 <= slots[t, e] < (11 if owner[0] else 3)
+
+
+def test_stencil_tets_are_positive_under_cuts_and_warps():
+    rng = np.random.default_rng(11)
+    n = 40
+    for _, x, labels, refs in _stencils():
+        if len(refs) == 0:
+            continue
+        cuts = _admissible_cuts(rng, x, n)
+        # every on-surface vertex moved by up to alpha along any of its 14 lattice edges
+        shift = np.zeros((n, 4, 3))
+        for v in range(4):
+            if labels[v] == 0:
+                d = _DIRECTIONS[rng.integers(14, size=n)]
+                alpha = np.where(np.abs(d).sum(axis=1) == 2, ALPHA_LONG, ALPHA_SHORT)
+                shift[:, v] = d * (alpha * rng.uniform(0.0, 1.0, n))[:, None]
+        pos = np.stack([_tables.ref_positions(x + shift[i], cuts[i]) for i in range(n)])
+        assert _volumes(pos[:, refs]).min() > 0.0
+
+
+def test_stencils_tile_the_inside_part_of_their_tet():
+    rng = np.random.default_rng(5)
+    for _, x, labels, refs in _stencils():
+        if len(refs) == 0 or min(labels) > -1:
+            continue
+        cuts = _admissible_cuts(rng, x, 1, extremes=0.0)[0]
+        pos = _tables.ref_positions(x, cuts)
+        # the solid is bounded by the inside parts of the tet's faces (clipped here, fanned)
+        # and by the stencil's own surface faces, whose nodes are cut points or 0 vertices
+        on_surface = {v for v in range(4) if labels[v] == 0} | set(range(4, 10))
+        tris = [[poly[0], poly[i], poly[i + 1]] for poly in _face_polygons(labels) for i in range(1, len(poly) - 1)]
+        surface = [tri for tri in _boundary(refs.tolist()) if set(tri) <= on_surface]
+        assert len(surface) == len(on_surface & set(refs.ravel().tolist())) - 2
+        region = pos[np.array(tris + [list(t) for t in surface])]
+        w = rng.dirichlet(np.ones(4), size=300)
+        points = w @ x
+        winding = _winding(points, region)
+        assert np.allclose(winding, np.round(winding), atol=1e-6), "the boundary is not closed"
+        covered = sum(_contains(points, pos[tet]).astype(int) for tet in refs)
+        assert covered.max() <= 1, "stencil tets overlap"
+        assert np.array_equal(covered, np.round(winding).astype(int)), "stencil tets do not fill the inside part"
+
+
+def test_stencil_angles_without_warping_stay_within_the_paper_bounds():
+    rng = np.random.default_rng(3)
+    lo, hi = 180.0, 0.0
+    for _, x, _, refs in _stencils():
+        if len(refs) == 0:
+            continue
+        pos = _positions(x, _admissible_cuts(rng, x, 60, extremes=0.8))
+        angles = _dihedrals(pos[:, refs])
+        lo, hi = min(lo, angles.min()), max(hi, angles.max())
+    assert lo >= PAPER_MIN_DIHEDRAL and hi <= PAPER_MAX_DIHEDRAL, (lo, hi)
+
+
+# ---------------------------------------------------------------------------
+# meshes
+
+
+def test_sphere(device):
+    r = 1.0
+    model = wb.Point((0.0, 0.0, 0.0), r)
+    mesh = tetrahedralize(model, cellsize=r / 15, device=device)
+    _check_mesh(model, mesh)
+    exact = 4.0 / 3.0 * math.pi * (SPHERE_RADIUS * r) ** 3
+    # the boundary is inscribed in the sphere: the volume is a little short of it
+    assert 0.99 * exact < mesh.volume() < exact
+    radii = np.linalg.norm(mesh.nodes, axis=1)
+    assert radii.max() <= SPHERE_RADIUS * r + 1e-3
+    stats = mesh.stats
+    assert stats["tets"] == mesh.tet_count and stats["nodes"] == mesh.node_count
+    assert stats["field_evaluations"] == stats["lattice_evaluations"] + stats["root_evaluations"]
+    assert set(stats["seconds"]) == {"classify", "sample", "cut", "warp", "stencil", "nodes"}
+
+
+@pytest.mark.parametrize("name", ["tumor", "peanut", "three_slabs"])
+def test_scenes(name):
+    model = wb.scenes.ALL[name]()
+    mesh = tetrahedralize(model, cellsize=0.1)
+    _check_mesh(model, mesh)
+    lo, hi = model.bounds()
+    assert np.all(mesh.nodes >= lo - 1e-6) and np.all(mesh.nodes <= hi + 1e-6)
+
+
+def test_random_blobs():
+    rng = np.random.default_rng(2)
+    model = wb.Blend(*[wb.Point(tuple(rng.uniform(-1, 1, 3)), float(rng.uniform(0.3, 0.8))) for _ in range(20)])
+    _check_mesh(model, tetrahedralize(model, cellsize=0.07))
+
+
+def test_volume_matches_monte_carlo():
+    model = wb.scenes.tumor()
+    mesh = tetrahedralize(model, cellsize=0.04)
+    lo, hi = (np.asarray(b) for b in model.bounds())
+    rng = np.random.default_rng(1)
+    n = 1_000_000
+    inside = wb.field(model, rng.uniform(lo, hi, (n, 3)).astype(np.float32)) >= 0.5
+    p = inside.mean()
+    estimate = p * np.prod(hi - lo)
+    sigma = math.sqrt(p * (1 - p) / n) * np.prod(hi - lo)
+    assert abs(mesh.volume() - estimate) < 0.01 * estimate + 3 * sigma
+
+
+def test_threads_do_not_change_the_mesh():
+    model = wb.scenes.peanut()
+    one = tetrahedralize(model, cellsize=0.05, threads=1)
+    two = tetrahedralize(model, cellsize=0.05, threads=2)
+    assert np.array_equal(one.nodes, two.nodes) and np.array_equal(one.tets, two.tets)
+
+
+def test_proven_regions_are_not_sampled():
+    model = wb.scenes.cake()
+    mesh = tetrahedralize(model, cellsize=0.05)
+    s = mesh.stats
+    assert s["sub_blocks_inside"] > 0 and s["sub_blocks_outside"] > 0
+    assert s["lattice_evaluations"] < 0.5 * s["lattice_points"]
+    # a proven-inside region still yields its whole lattice tets
+    assert mesh.tet_count > 12 * 8 * s["sub_blocks_inside"]
+
+
+def test_linear_model_and_node_give_the_same_mesh():
+    model = wb.scenes.peanut()
+    a = tetrahedralize(model, cellsize=0.1)
+    b = tetrahedralize(wb.linearize(model), cellsize=0.1)
+    assert np.array_equal(a.tets, b.tets) and np.array_equal(a.nodes, b.nodes)
+
+
+def test_empty_model_gives_an_empty_mesh():
+    model = wb.Point((0, 0, 0), 1.0) & wb.Point((10, 0, 0), 1.0)
+    mesh = tetrahedralize(model, cellsize=0.1)
+    assert mesh.tet_count == 0 and mesh.node_count == 0
+
+
+def test_bad_arguments():
+    model = wb.scenes.peanut()
+    for cellsize in (0, -0.1, float("nan"), float("inf"), "a", None):
+        with pytest.raises(wb.WarpblobError, match="cellsize"):
+            tetrahedralize(model, cellsize=cellsize)
+    for alpha in (0.0, 0.5, 0.7, -0.1, "x"):
+        with pytest.raises(wb.WarpblobError, match="alpha_long"):
+            tetrahedralize(model, cellsize=0.1, alpha_long=alpha)
+        with pytest.raises(wb.WarpblobError, match="alpha_short"):
+            tetrahedralize(model, cellsize=0.1, alpha_short=alpha)
+    for threads in (0, -1, 1.5, True):
+        with pytest.raises(wb.WarpblobError, match="threads"):
+            tetrahedralize(model, cellsize=0.1, threads=threads)
+    with pytest.raises(wb.WarpblobError, match="interior_cellsize"):
+        tetrahedralize(model, cellsize=0.1, interior_cellsize=-1.0)
+    with pytest.raises(NotImplementedError, match="graded interior"):
+        tetrahedralize(model, cellsize=0.1, interior_cellsize=0.4)
+    with pytest.raises(wb.WarpblobError, match="device"):
+        tetrahedralize(model, cellsize=0.1, device="cuda:99")
+    with pytest.raises(wb.ResourceError, match="MiB"):
+        tetrahedralize(model, cellsize=0.1, max_memory=1000)
+    # interior_cellsize equal to cellsize is the uniform lattice
+    assert tetrahedralize(model, cellsize=0.1, interior_cellsize=0.1).tet_count > 0

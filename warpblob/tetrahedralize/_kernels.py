@@ -1,0 +1,498 @@
+"""Warp kernels of isosurface stuffing (see :mod:`warpblob.tetrahedralize`).
+
+Lattice points are numbered densely: black points (cube corners) ``(i, j, k)``
+with ``0 <= i <= cells[0]`` first, then red points (cube centres) with
+``0 <= i < cells[0]``. Every lattice edge is owned by one point and named by
+``(owner, slot)``: slots 0-2 are the long edges to the next point of the same
+colour along +x, +y, +z, slots 3-10 (red points only) the short edges to the
+eight corners of the point's cube, corner ``(dx, dy, dz)`` at slot
+``3 + dx + 2 dy + 4 dz``. A per-point bit mask of crossed owned edges and an
+exclusive scan of its bit counts give every cut point a unique index without
+hashing: ``cut_offsets[owner] + popcount(mask[owner] & ((1 << slot) - 1))``.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from ..field._kernels import ModelArrays, make_evaluate, make_segment_root
+from ._tables import MAX_STENCIL
+
+BLOCK = 8  # cubes per side of a coarse block (first interval test)
+SUB = 2  # cubes per side of a sub-block (second interval test, the unit of tet work)
+SUB_CELLS = SUB * SUB * SUB
+TETS_PER_CELL = 12
+
+_BLOCK = wp.constant(BLOCK)
+_SUB = wp.constant(SUB)
+_SUB_CELLS = wp.constant(SUB_CELLS)
+_TETS_PER_CELL = wp.constant(TETS_PER_CELL)
+_MAX_STENCIL = wp.constant(MAX_STENCIL)
+_SHORT = wp.constant(0.8660254037844386)  # short edge / long edge = sqrt(3) / 2
+_HALF_DIAGONAL = wp.constant(0.8660254037844386 * 1.0001)  # ball radius / box side, with margin
+
+MIXED = 0
+INSIDE = 1
+OUTSIDE = 2
+_MIXED = wp.constant(MIXED)
+_INSIDE = wp.constant(INSIDE)
+_OUTSIDE = wp.constant(OUTSIDE)
+
+
+vec10i = wp.types.vector(length=10, dtype=wp.int32)
+
+
+@wp.struct
+class Lattice:
+    origin: wp.vec3  # position of black point (0, 0, 0)
+    h: float  # cube side = long edge length
+    cells: wp.vec3i  # cubes per axis
+    black: int  # number of black points
+    blocks: wp.vec3i  # coarse blocks per axis
+    subs: wp.vec3i  # sub-blocks per axis
+
+
+@wp.func
+def grid_coords(n: wp.vec3i, index: int):
+    return wp.vec3i(index % n[0], (index // n[0]) % n[1], index // (n[0] * n[1]))
+
+
+@wp.func
+def point_index(l: Lattice, red: int, c: wp.vec3i):
+    """Index of the black (red = 0) or red point ``c``, or -1 outside the lattice."""
+    n = l.cells
+    if red == 0:
+        if c[0] < 0 or c[1] < 0 or c[2] < 0 or c[0] > n[0] or c[1] > n[1] or c[2] > n[2]:
+            return -1
+        return (c[2] * (n[1] + 1) + c[1]) * (n[0] + 1) + c[0]
+    if c[0] < 0 or c[1] < 0 or c[2] < 0 or c[0] >= n[0] or c[1] >= n[1] or c[2] >= n[2]:
+        return -1
+    return l.black + (c[2] * n[1] + c[1]) * n[0] + c[0]
+
+
+@wp.func
+def point_coords(l: Lattice, p: int):
+    """(red, i, j, k) of point index ``p``."""
+    n = l.cells
+    if p < l.black:
+        c = grid_coords(wp.vec3i(n[0] + 1, n[1] + 1, n[2] + 1), p)
+        return wp.vec4i(0, c[0], c[1], c[2])
+    c = grid_coords(n, p - l.black)
+    return wp.vec4i(1, c[0], c[1], c[2])
+
+
+@wp.func
+def point_position(l: Lattice, q: wp.vec4i):
+    s = 0.5 * float(q[0])
+    return l.origin + l.h * wp.vec3(float(q[1]) + s, float(q[2]) + s, float(q[3]) + s)
+
+
+@wp.func
+def edge_end(q: wp.vec4i, slot: int):
+    """The other end of owned edge ``slot`` of point ``q`` (red, i, j, k)."""
+    if slot < 3:
+        e = wp.vec4i(q[0], q[1], q[2], q[3])
+        e[1 + slot] = e[1 + slot] + 1
+        return e
+    corner = slot - 3
+    return wp.vec4i(0, q[1] + (corner & 1), q[2] + ((corner >> 1) & 1), q[3] + (corner >> 2))
+
+
+@wp.func
+def bits_below(mask: int, slot: int):
+    """Number of set bits of ``mask`` below bit ``slot``."""
+    count = int(0)
+    for b in range(11):
+        if b < slot and (mask >> b) & 1 != 0:
+            count += 1
+    return count
+
+
+@wp.func
+def cell_state(l: Lattice, sub_states: wp.array(dtype=wp.int32), c: wp.vec3i):
+    """State of the sub-block of cube ``c``; cubes outside the lattice are outside."""
+    if c[0] < 0 or c[1] < 0 or c[2] < 0 or c[0] >= l.cells[0] or c[1] >= l.cells[1] or c[2] >= l.cells[2]:
+        return _OUTSIDE
+    s = wp.vec3i(c[0] // _SUB, c[1] // _SUB, c[2] // _SUB)
+    return sub_states[(s[2] * l.subs[1] + s[1]) * l.subs[0] + s[0]]
+
+
+@wp.func
+def label_of(value: float, iso: float):
+    if value > iso:
+        return 1
+    if value < iso:
+        return -1
+    return 0
+
+
+def make_kernels():
+    """Build the kernels that evaluate the field (compiled once per process and device)."""
+    bound = make_evaluate(True, interval=True)
+    value = make_evaluate(True)
+    segment_root = make_segment_root(value)
+
+    @wp.func
+    def box_state(m: ModelArrays, l: Lattice, iso: float, first: wp.vec3i, side: int):
+        """Proven state of the box of cubes [first, first + side + 1) per axis: the cubes'
+        own tets reach at most one cube further along +x, +y, +z."""
+        extent = float(side + 1) * l.h
+        corner = l.origin + l.h * wp.vec3(float(first[0]), float(first[1]), float(first[2]))
+        r = bound(m, corner + wp.vec3(0.5 * extent), extent * _HALF_DIAGONAL)
+        state = _MIXED
+        if r[0] > iso:
+            state = _INSIDE
+        elif r[1] < iso:
+            state = _OUTSIDE
+        return state
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def classify_blocks_kernel(
+        m: ModelArrays, l: Lattice, iso: float, offset: int, block_states: wp.array(dtype=wp.int32)
+    ):
+        b = wp.tid() + offset
+        c = grid_coords(l.blocks, b)
+        block_states[b] = box_state(m, l, iso, wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK), _BLOCK)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def classify_subs_kernel(
+        m: ModelArrays,
+        l: Lattice,
+        iso: float,
+        block_states: wp.array(dtype=wp.int32),
+        offset: int,
+        sub_states: wp.array(dtype=wp.int32),
+        bounded: wp.array(dtype=wp.int32),
+    ):
+        """A sub-block inherits a proven block state, else gets its own interval test."""
+        s = wp.tid() + offset
+        c = grid_coords(l.subs, s)
+        first = wp.vec3i(c[0] * _SUB, c[1] * _SUB, c[2] * _SUB)
+        b = wp.vec3i(first[0] // _BLOCK, first[1] // _BLOCK, first[2] // _BLOCK)
+        state = block_states[(b[2] * l.blocks[1] + b[1]) * l.blocks[0] + b[0]]
+        bounded[s] = 0
+        if state == _MIXED:
+            state = box_state(m, l, iso, first, _SUB)
+            bounded[s] = 1
+        sub_states[s] = state
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def sample_points_kernel(
+        m: ModelArrays,
+        l: Lattice,
+        iso: float,
+        sub_states: wp.array(dtype=wp.int32),
+        offset: int,
+        values: wp.array(dtype=wp.float32),
+        evaluated: wp.array(dtype=wp.int32),
+    ):
+        """The field at every point used by a tet of a mixed sub-block; a stand-in on the
+        proven side of ``iso`` elsewhere (all tets using the point agree on the side)."""
+        p = wp.tid() + offset
+        q = point_coords(l, p)
+        c = wp.vec3i(q[1], q[2], q[3])
+        needed = bool(False)
+        proven = _OUTSIDE
+        if q[0] == 0:
+            # a cube corner is used by tets owned by the 8 cubes around it
+            for d in range(8):
+                st = cell_state(l, sub_states, c - wp.vec3i(d & 1, (d >> 1) & 1, d >> 2))
+                if st == _MIXED:
+                    needed = True
+                elif st == _INSIDE:
+                    proven = _INSIDE
+        else:
+            # a cube centre is used by its own cube's tets and by those of the cube before it on each axis
+            for d in range(4):
+                back = wp.vec3i(0)
+                if d > 0:
+                    back[d - 1] = 1
+                st = cell_state(l, sub_states, c - back)
+                if st == _MIXED:
+                    needed = True
+                elif st == _INSIDE:
+                    proven = _INSIDE
+        if needed:
+            values[p] = value(m, point_position(l, q), 0.0)[0]
+            evaluated[p] = 1
+        else:
+            values[p] = wp.where(proven == _INSIDE, iso + 0.5, iso - 0.5)
+            evaluated[p] = 0
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def cut_edges_kernel(
+        m: ModelArrays,
+        l: Lattice,
+        iso: float,
+        tolerance: float,
+        max_iterations: int,
+        values: wp.array(dtype=wp.float32),
+        masks: wp.array(dtype=wp.int32),
+        cut_offsets: wp.array(dtype=wp.int32),
+        offset: int,
+        cut_positions: wp.array(dtype=wp.vec3),
+        cut_params: wp.array(dtype=wp.float32),
+        evaluations: wp.array(dtype=wp.int32),
+    ):
+        """A cut point on every crossed edge owned by point ``p``: the shared
+        safeguarded Newton search (:func:`~warpblob.field._kernels.make_segment_root`)
+        until ``|F - iso| <= tolerance``."""
+        p = wp.tid() + offset
+        mask = masks[p]
+        if mask == 0:
+            return
+        q = point_coords(l, p)
+        p0 = point_position(l, q)
+        f0 = values[p] - iso
+        out = cut_offsets[p]
+        for slot in range(11):
+            if (mask >> slot) & 1 != 0:
+                e = edge_end(q, slot)
+                step = point_position(l, e) - p0
+                f1 = values[point_index(l, e[0], wp.vec3i(e[1], e[2], e[3]))] - iso
+                r, tx, count = segment_root(m, p0, step, f0, f1, iso, tolerance, max_iterations)
+                cut_positions[out] = p0 + tx * step
+                cut_params[out] = tx
+                evaluations[out] = count
+                out += 1
+
+    return {
+        "classify_blocks": classify_blocks_kernel,
+        "classify_subs": classify_subs_kernel,
+        "sample": sample_points_kernel,
+        "cut": cut_edges_kernel,
+    }
+
+
+@wp.kernel(enable_backward=False)
+def count_cuts_kernel(
+    l: Lattice,
+    iso: float,
+    values: wp.array(dtype=wp.float32),
+    offset: int,
+    masks: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+):
+    """Bit mask and number of the owned edges of ``p`` whose ends are strictly on opposite sides."""
+    p = wp.tid() + offset
+    q = point_coords(l, p)
+    s = label_of(values[p], iso)
+    mask = int(0)
+    count = int(0)
+    if s != 0:
+        slots = wp.where(q[0] == 0, 3, 11)
+        for slot in range(slots):
+            e = edge_end(q, slot)
+            other = point_index(l, e[0], wp.vec3i(e[1], e[2], e[3]))
+            if other >= 0 and label_of(values[other], iso) == -s:
+                mask = mask | (1 << slot)
+                count += 1
+    masks[p] = mask
+    counts[p] = count
+
+
+@wp.func
+def incident_edge(l: Lattice, q: wp.vec4i, k: int):
+    """Edge ``k`` (0-13) of point ``q`` as (owner index or -1, slot, 1 if ``q`` owns it)."""
+    c = wp.vec3i(q[1], q[2], q[3])
+    if k < 3:
+        return wp.vec3i(point_index(l, q[0], c), k, 1)
+    if k < 6:
+        back = wp.vec3i(0)
+        back[k - 3] = 1
+        return wp.vec3i(point_index(l, q[0], c - back), k - 3, 0)
+    d = k - 6
+    if q[0] == 1:
+        return wp.vec3i(point_index(l, 1, c), 3 + d, 1)
+    return wp.vec3i(point_index(l, 1, c - wp.vec3i(d & 1, (d >> 1) & 1, d >> 2)), 3 + d, 0)
+
+
+@wp.kernel(enable_backward=False)
+def warp_points_kernel(
+    l: Lattice,
+    iso: float,
+    alpha_long: float,
+    alpha_short: float,
+    values: wp.array(dtype=wp.float32),
+    masks: wp.array(dtype=wp.int32),
+    cut_offsets: wp.array(dtype=wp.int32),
+    cut_params: wp.array(dtype=wp.float32),
+    offset: int,
+    labels: wp.array(dtype=wp.int32),
+    targets: wp.array(dtype=wp.int32),
+):
+    """Warping: a point with a cut point closer than alpha times the edge length on one of
+    its 14 edges moves to the closest such cut point and gets label 0 (on the surface)."""
+    p = wp.tid() + offset
+    q = point_coords(l, p)
+    s = label_of(values[p], iso)
+    target = int(-1)
+    if s != 0:
+        best = float(1.0e30)
+        for k in range(14):
+            e = incident_edge(l, q, k)
+            if e[0] >= 0:
+                mask = masks[e[0]]
+                if (mask >> e[1]) & 1 != 0:
+                    cut = cut_offsets[e[0]] + bits_below(mask, e[1])
+                    t = cut_params[cut]
+                    if e[2] == 0:
+                        t = 1.0 - t
+                    alpha = alpha_long
+                    length = l.h
+                    if e[1] >= 3:
+                        alpha = alpha_short
+                        length = l.h * _SHORT
+                    d = t * length
+                    # ties go to the smaller cut index, so the result does not depend on the edge order
+                    if t < alpha and (d < best or (d == best and cut < target)):
+                        best = d
+                        target = cut
+        if target >= 0:
+            s = 0
+    labels[p] = s
+    targets[p] = target
+
+
+@wp.func
+def tet_vertex(l: Lattice, cell: wp.vec3i, v: wp.vec4i):
+    """Point index of a tet vertex ``(red, dx, dy, dz)`` relative to its owning cube (-1 outside)."""
+    return point_index(l, v[0], cell + wp.vec3i(v[1], v[2], v[3]))
+
+
+@wp.func
+def tet_cell(l: Lattice, active: wp.array(dtype=wp.int32), tid: int):
+    """(cube i, j, k, tet type) of thread ``tid`` over the active sub-blocks."""
+    a = tid // (_SUB_CELLS * _TETS_PER_CELL)
+    r = tid - a * (_SUB_CELLS * _TETS_PER_CELL)
+    local = r // _TETS_PER_CELL
+    s = grid_coords(l.subs, active[a])
+    return wp.vec4i(
+        s[0] * _SUB + (local & 1), s[1] * _SUB + ((local >> 1) & 1), s[2] * _SUB + (local >> 2), r % _TETS_PER_CELL
+    )
+
+
+@wp.kernel(enable_backward=False)
+def count_tets_kernel(
+    l: Lattice,
+    labels: wp.array(dtype=wp.int32),
+    vertex_table: wp.array2d(dtype=wp.vec4i),
+    stencil_counts: wp.array2d(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    offset: int,
+    patterns: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+):
+    """Sign pattern (3^4) of each lattice tet of the active sub-blocks and its stencil's size."""
+    tid = wp.tid() + offset
+    t = tet_cell(l, active, tid)
+    cell = wp.vec3i(t[0], t[1], t[2])
+    pattern = int(0)
+    scale = int(1)
+    inside = bool(True)
+    for v in range(4):
+        p = tet_vertex(l, cell, vertex_table[t[3], v])
+        if p < 0:
+            inside = False
+        else:
+            pattern += scale * (labels[p] + 1)
+        scale *= 3
+    if inside:
+        patterns[tid] = pattern
+        counts[tid] = stencil_counts[t[3], pattern]
+    else:
+        patterns[tid] = 0
+        counts[tid] = 0
+
+
+@wp.kernel(enable_backward=False)
+def emit_tets_kernel(
+    l: Lattice,
+    n_points: int,
+    vertex_table: wp.array2d(dtype=wp.vec4i),
+    edge_owners: wp.array2d(dtype=wp.vec4i),
+    edge_slots: wp.array2d(dtype=wp.int32),
+    stencil_refs: wp.array3d(dtype=wp.vec4i),
+    masks: wp.array(dtype=wp.int32),
+    cut_offsets: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
+    patterns: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+    tet_offsets: wp.array(dtype=wp.int32),
+    offset: int,
+    tets: wp.array(dtype=wp.vec4i),
+):
+    """The stencil's tets over provisional node ids: points first, then cut points."""
+    tid = wp.tid() + offset
+    n = counts[tid]
+    if n == 0:
+        return
+    t = tet_cell(l, active, tid)
+    cell = wp.vec3i(t[0], t[1], t[2])
+    nodes = wp.vec4i()
+    refs = vec10i()
+    for v in range(4):
+        refs[v] = tet_vertex(l, cell, vertex_table[t[3], v])
+    for e in range(6):
+        o = edge_owners[t[3], e]
+        owner = point_index(l, o[0], cell + wp.vec3i(o[1], o[2], o[3]))
+        mask = masks[owner]
+        slot = edge_slots[t[3], e]
+        refs[4 + e] = -1
+        if (mask >> slot) & 1 != 0:
+            refs[4 + e] = n_points + cut_offsets[owner] + bits_below(mask, slot)
+    out = tet_offsets[tid]
+    for k in range(_MAX_STENCIL):
+        if k < n:
+            r = stencil_refs[t[3], patterns[tid], k]
+            for i in range(4):
+                nodes[i] = refs[r[i]]
+            tets[out + k] = nodes
+
+
+@wp.kernel(enable_backward=False)
+def mark_nodes_kernel(tets: wp.array(dtype=wp.vec4i), offset: int, used: wp.array(dtype=wp.int32)):
+    tid = wp.tid() + offset
+    t = tets[tid]
+    for i in range(4):
+        # every writer stores the same 1: the race is benign
+        used[t[i]] = 1
+
+
+@wp.kernel(enable_backward=False)
+def write_nodes_kernel(
+    l: Lattice,
+    n_points: int,
+    targets: wp.array(dtype=wp.int32),
+    cut_positions: wp.array(dtype=wp.vec3),
+    used: wp.array(dtype=wp.int32),
+    node_ids: wp.array(dtype=wp.int32),
+    offset: int,
+    nodes: wp.array(dtype=wp.vec3),
+):
+    """Final node positions: lattice points (warped ones at their cut point), then cut points."""
+    u = wp.tid() + offset
+    if used[u] == 0:
+        return
+    out = node_ids[u]
+    if u >= n_points:
+        nodes[out] = cut_positions[u - n_points]
+    elif targets[u] >= 0:
+        nodes[out] = cut_positions[targets[u]]
+    else:
+        nodes[out] = point_position(l, point_coords(l, u))
+
+
+@wp.kernel(enable_backward=False)
+def renumber_tets_kernel(
+    node_ids: wp.array(dtype=wp.int32), tets: wp.array(dtype=wp.vec4i), offset: int, out: wp.array(dtype=wp.vec4i)
+):
+    tid = wp.tid() + offset
+    t = tets[tid]
+    out[tid] = wp.vec4i(node_ids[t[0]], node_ids[t[1]], node_ids[t[2]], node_ids[t[3]])
+
+
+@wp.kernel(enable_backward=False)
+def active_flags_kernel(sub_states: wp.array(dtype=wp.int32), offset: int, flags: wp.array(dtype=wp.int32)):
+    tid = wp.tid() + offset
+    flags[tid] = wp.where(sub_states[tid] == _OUTSIDE, 0, 1)

@@ -1,0 +1,299 @@
+"""Host side of isosurface stuffing: arguments, stages, memory checks, statistics."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from .._errors import ResourceError, WarpblobError
+from .._linearize import linearize
+from .._parallel import launch
+from .._stages import available_memory, check_memory, compact, scan
+from ..field._engine import model_arrays, resolve_device
+from ..mesh._tetmesh import TetMesh
+from ..tree import ISO_VALUE
+from . import _kernels, _tables
+
+__all__ = ["ALPHA_LONG", "ALPHA_SHORT", "tetrahedralize"]
+
+ALPHA_LONG = 0.24999
+ALPHA_SHORT = 0.41189
+_WHO = "tetrahedralize"
+_TOLERANCE = 1e-4  # largest |F - iso| of a cut point
+_ROOT_ITERATIONS = 32
+
+_CACHE: dict = {}
+
+
+def _kernel_set():
+    if "kernels" not in _CACHE:
+        _CACHE["kernels"] = _kernels.make_kernels()
+    return _CACHE["kernels"]
+
+
+def _device_tables(device):
+    key = ("tables", str(device))
+    if key not in _CACHE:
+        counts, refs = _tables.build_stencils()
+        owners, slots = _tables.edge_table()
+        _CACHE[key] = {
+            "vertices": wp.array(_tables.vertex_table(), dtype=wp.vec4i, device=device),
+            "edge_owners": wp.array(owners, dtype=wp.vec4i, device=device),
+            "edge_slots": wp.array(slots, dtype=wp.int32, device=device),
+            "counts": wp.array(counts, dtype=wp.int32, device=device),
+            "refs": wp.array(refs, dtype=wp.vec4i, device=device),
+        }
+    return _CACHE[key]
+
+
+def _positive(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise WarpblobError(f"tetrahedralize: {name} must be a positive number, got {value!r}") from None
+    if not (np.isfinite(v) and v > 0.0):
+        raise WarpblobError(f"tetrahedralize: {name} must be a positive number, got {value!r}")
+    return v
+
+
+def _alpha(name: str, value) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = float("nan")
+    if not (0.0 < v < 0.5):
+        raise WarpblobError(f"tetrahedralize: {name} must lie in (0, 0.5), got {value!r}")
+    return v
+
+
+def tetrahedralize(
+    model,
+    *,
+    cellsize: float,
+    interior_cellsize: float | None = None,
+    device=None,
+    alpha_long: float = ALPHA_LONG,
+    alpha_short: float = ALPHA_SHORT,
+    max_memory: int | None = None,
+    threads: int | None = None,
+):
+    """Fill ``model`` with tetrahedra by isosurface stuffing (Labelle & Shewchuk 2007).
+
+    See :mod:`warpblob.tetrahedralize` for the method and its guarantees.
+
+    Args:
+        model: a model (:class:`~warpblob.Node`) or its :class:`~warpblob.LinearModel`.
+        cellsize: side of the body-centred cubic lattice's cubes (its long
+            edge length), model units, > 0.
+        interior_cellsize: coarser tets inside (the paper's graded variant):
+            not implemented; ``None`` or ``cellsize`` give the uniform lattice.
+        device: Warp device (default: Warp's default device).
+        alpha_long: warping threshold on long (axis-parallel) edges, as a
+            fraction of the edge; in (0, 0.5).
+        alpha_short: warping threshold on short (diagonal) edges; in (0, 0.5).
+            The defaults are the paper's pair with dihedral angles in
+            [10.7 deg, 164.8 deg].
+        max_memory: bytes the call may allocate (default: what is available).
+        threads: CPU threads (default: :func:`warpblob.thread_count`).
+
+    Returns:
+        :class:`~warpblob.mesh.TetMesh` with positively oriented tets,
+        ``material`` 0 for every tet, and ``stats``: ``cellsize``,
+        ``lattice_points``, ``field_evaluations`` (lattice samples plus
+        root-search steps, counted in the kernels), ``lattice_evaluations``,
+        ``root_evaluations``, ``interval_evaluations`` (block bounds),
+        ``blocks_total``, ``sub_blocks_total``, ``sub_blocks_active`` (not
+        proven outside), ``sub_blocks_inside`` (proven inside: tets without
+        field evaluation), ``sub_blocks_outside``,
+        ``cut_points``, ``warped_points``, ``tets``, ``nodes``, ``seconds``
+        per stage and ``total_seconds``.
+
+    Raises:
+        WarpblobError: bad arguments. NotImplementedError: a graded interior
+            (``interior_cellsize`` other than ``cellsize``). ResourceError:
+            the estimated memory exceeds ``max_memory``.
+
+    Example:
+        >>> import warpblob as wb
+        >>> from warpblob.tetrahedralize import tetrahedralize
+        >>> mesh = tetrahedralize(wb.Point((0, 0, 0), 1.0), cellsize=0.1)
+        >>> bool(mesh.volumes().min() > 0), mesh.is_conforming()
+        (True, True)
+    """
+    h = _positive("cellsize", cellsize)
+    if interior_cellsize is not None and _positive("interior_cellsize", interior_cellsize) != h:
+        raise NotImplementedError(
+            "tetrahedralize: a graded interior (interior_cellsize different from cellsize, "
+            f"{interior_cellsize!r} != {cellsize!r}) is not implemented; pass interior_cellsize=None"
+        )
+    a_long = _alpha("alpha_long", alpha_long)
+    a_short = _alpha("alpha_short", alpha_short)
+    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
+        raise WarpblobError(f"tetrahedralize: threads must be a positive integer, got {threads!r}")
+    dev = resolve_device(device)
+    lm = linearize(model)
+    limit = available_memory(dev) if max_memory is None else int(max_memory)
+    iso = float(ISO_VALUE)
+    seconds: dict = {}
+    stats: dict = {"cellsize": h, "alpha_long": a_long, "alpha_short": a_short}
+    t0 = time.perf_counter()
+
+    def lap(name):
+        nonlocal t0
+        wp.synchronize_device(dev)
+        now = time.perf_counter()
+        seconds[name] = now - t0
+        t0 = now
+
+    lo, hi = lm.bounds
+    if np.any(lo > hi):
+        stats.update(tets=0, nodes=0, field_evaluations=0, seconds=seconds, total_seconds=0.0)
+        return TetMesh(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.int32), np.zeros(0, np.int32), stats)
+
+    # one empty cube of margin on every side: the outermost points see F = 0, so the
+    # tets that would reach past the lattice are outside anyway and the boundary closes
+    cells = np.ceil((hi - lo) / h).astype(np.int64) + 2
+    blocks = -(-cells // _kernels.BLOCK)
+    subs = -(-cells // _kernels.SUB)
+    n_black = int(np.prod(cells + 1))
+    n_points = n_black + int(np.prod(cells))
+    n_blocks, n_subs = int(np.prod(blocks)), int(np.prod(subs))
+    if n_points >= np.iinfo(np.int32).max // 2 or n_subs * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL >= 2**31:
+        raise ResourceError(
+            f"tetrahedralize: {n_points} lattice points exceed the int32 index range; use a larger cellsize"
+        )
+    check_memory(_WHO, "lattice", n_points * 40 + n_subs * 16 + n_blocks * 4, limit)
+    lat = _kernels.Lattice()
+    lat.origin = wp.vec3(*(lo - h).astype(np.float32))
+    lat.h = h
+    lat.cells = wp.vec3i(*cells.astype(np.int32))
+    lat.black = n_black
+    lat.blocks = wp.vec3i(*blocks.astype(np.int32))
+    lat.subs = wp.vec3i(*subs.astype(np.int32))
+    kernels = _kernel_set()
+    tables = _device_tables(dev)
+    m = model_arrays(lm, dev)
+
+    # 1. empty-space and full-space rejection: interval bounds of F on blocks, then sub-blocks
+    block_states = wp.empty(n_blocks, dtype=wp.int32, device=dev)
+    launch(kernels["classify_blocks"], n_blocks, [m, lat, iso], [block_states], dev, threads)
+    sub_states = wp.empty(n_subs, dtype=wp.int32, device=dev)
+    bounded = wp.empty(n_subs, dtype=wp.int32, device=dev)
+    launch(kernels["classify_subs"], n_subs, [m, lat, iso, block_states], [sub_states, bounded], dev, threads)
+    flags = wp.empty(n_subs, dtype=wp.int32, device=dev)
+    launch(_kernels.active_flags_kernel, n_subs, [sub_states], [flags], dev, threads)
+    active = compact(flags, dev, threads)
+    n_active = active.shape[0]
+    lap("classify")
+
+    # 2. the field at the lattice points that a tet of a mixed sub-block uses
+    values = wp.empty(n_points, dtype=wp.float32, device=dev)
+    evaluated = wp.empty(n_points, dtype=wp.int32, device=dev)
+    launch(kernels["sample"], n_points, [m, lat, iso, sub_states], [values, evaluated], dev, threads)
+    lap("sample")
+
+    # 3. cut points on the crossed lattice edges
+    masks = wp.empty(n_points, dtype=wp.int32, device=dev)
+    cut_counts = wp.empty(n_points, dtype=wp.int32, device=dev)
+    launch(_kernels.count_cuts_kernel, n_points, [lat, iso, values], [masks, cut_counts], dev, threads)
+    cut_offsets, n_cuts = scan(cut_counts)
+    check_memory(_WHO, "cut point", n_cuts * 28, limit)
+    cut_positions = wp.empty(n_cuts, dtype=wp.vec3, device=dev)
+    cut_params = wp.empty(n_cuts, dtype=wp.float32, device=dev)
+    root_steps = wp.empty(n_cuts, dtype=wp.int32, device=dev)
+    launch(
+        kernels["cut"],
+        n_points,
+        [m, lat, iso, _TOLERANCE, _ROOT_ITERATIONS, values, masks, cut_offsets],
+        [cut_positions, cut_params, root_steps],
+        dev,
+        threads,
+    )
+    lap("cut")
+
+    # 4. warping: lattice points too close to a cut point move onto it
+    labels = wp.empty(n_points, dtype=wp.int32, device=dev)
+    targets = wp.empty(n_points, dtype=wp.int32, device=dev)
+    launch(
+        _kernels.warp_points_kernel,
+        n_points,
+        [lat, iso, a_long, a_short, values, masks, cut_offsets, cut_params],
+        [labels, targets],
+        dev,
+        threads,
+    )
+    lap("warp")
+
+    # 5. stencils: count, scan, emit
+    n_threads = n_active * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL
+    check_memory(_WHO, "stencil", n_threads * 12, limit)
+    patterns = wp.empty(n_threads, dtype=wp.int32, device=dev)
+    tet_counts = wp.empty(n_threads, dtype=wp.int32, device=dev)
+    launch(
+        _kernels.count_tets_kernel,
+        n_threads,
+        [lat, labels, tables["vertices"], tables["counts"], active],
+        [patterns, tet_counts],
+        dev,
+        threads,
+    )
+    tet_offsets, n_raw = scan(tet_counts)
+    check_memory(_WHO, "tet", n_raw * 32 + (n_points + n_cuts) * 8, limit)
+    raw = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
+    launch(
+        _kernels.emit_tets_kernel,
+        n_threads,
+        [lat, n_points, tables["vertices"], tables["edge_owners"], tables["edge_slots"], tables["refs"], masks,
+         cut_offsets, active, patterns, tet_counts, tet_offsets],
+        [raw],
+        dev,
+        threads,
+    )  # fmt: skip
+    lap("stencil")
+
+    # 6. nodes: keep the points and cut points that a tet uses, renumbered by a scan
+    used = wp.zeros(n_points + n_cuts, dtype=wp.int32, device=dev)
+    launch(_kernels.mark_nodes_kernel, n_raw, [raw], [used], dev, threads)
+    node_ids, n_nodes = scan(used)
+    nodes = wp.empty(n_nodes, dtype=wp.vec3, device=dev)
+    launch(
+        _kernels.write_nodes_kernel,
+        n_points + n_cuts,
+        [lat, n_points, targets, cut_positions, used, node_ids],
+        [nodes],
+        dev,
+        threads,
+    )
+    tets = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
+    launch(_kernels.renumber_tets_kernel, n_raw, [node_ids, raw], [tets], dev, threads)
+    lap("nodes")
+
+    states = sub_states.numpy()
+    lattice_evaluations = int(evaluated.numpy().sum())
+    root_evaluations = int(root_steps.numpy().sum()) if n_cuts else 0
+    stats.update(
+        lattice_points=n_points,
+        blocks_total=n_blocks,
+        sub_blocks_total=n_subs,
+        sub_blocks_active=n_active,
+        sub_blocks_inside=int(np.count_nonzero(states == _kernels.INSIDE)),
+        sub_blocks_outside=int(np.count_nonzero(states == _kernels.OUTSIDE)),
+        lattice_evaluations=lattice_evaluations,
+        root_evaluations=root_evaluations,
+        field_evaluations=lattice_evaluations + root_evaluations,
+        interval_evaluations=n_blocks + int(bounded.numpy().sum()),
+        cut_points=n_cuts,
+        warped_points=int(np.count_nonzero(targets.numpy() >= 0)),
+        tets=n_raw,
+        nodes=n_nodes,
+        seconds=seconds,
+        total_seconds=sum(seconds.values()),
+    )
+    return TetMesh(
+        nodes.numpy().reshape(-1, 3),
+        tets.numpy().reshape(-1, 4),
+        np.zeros(n_raw, dtype=np.int32),
+        stats,
+    )
