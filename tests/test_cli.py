@@ -142,3 +142,29 @@ def test_bad_usd_scene_is_one_line(tmp_path, content, words):
     r = run_cli("info", str(path))
     assert r.returncode == 1
     assert "Traceback" not in r.stderr and words in r.stderr
+
+
+def test_tetrahedralize_then_quality(tmp_path):
+    out = tmp_path / "peanut_volume.usda"
+    r = run_cli("tetrahedralize", "peanut", "--cellsize", "0.15", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    mesh = wb.TetMesh.from_usd(out)
+    direct = wb.tetrahedralize(wb.scenes.peanut(), cellsize=0.15)
+    assert mesh.tets.shape == direct.tets.shape
+    r = run_cli("quality", str(out))
+    assert r.returncode == 0, r.stderr
+    q = direct.quality()
+    assert f"{q.dihedral_min:.2f}" in r.stdout
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (("tetrahedralize", "tumor", "--cellsize", "0.1", "--interior-cellsize", "0.3", "--out", "v.usda"), "interior"),
+        (("tetrahedralize", "tumor", "--cellsize", "0.1", "--out", "v.vtk"), "v.vtk"),
+        (("quality", "missing.usda"), "missing.usda"),
+    ],
+)
+def test_volume_errors_are_one_line(tmp_path, args, words):
+    r = run_cli(*args, cwd=tmp_path)
+    assert r.returncode == 1 and "Traceback" not in r.stderr and words in r.stderr

@@ -1,4 +1,4 @@
-"""The ``warpblob`` command line: ``demo``, ``info``, ``field`` and ``polygonize``."""
+"""The ``warpblob`` command line: ``demo``, ``info``, ``field``, ``polygonize``, ``tetrahedralize``, ``quality``."""
 
 from __future__ import annotations
 
@@ -191,6 +191,38 @@ def cmd_polygonize(args) -> int:
     return 0
 
 
+def cmd_tetrahedralize(args) -> int:
+    from .tetrahedralize import tetrahedralize
+
+    model = _load(args.scene)
+    if not args.out.lower().endswith(_USD_SUFFIXES[:3]):
+        raise WarpblobError(f"--out must be a .usda, .usdc or .usd file, got {args.out!r}")
+    try:
+        mesh = tetrahedralize(model, cellsize=args.cellsize, interior_cellsize=args.interior_cellsize, device=args.device)
+    except NotImplementedError as exc:
+        raise WarpblobError(str(exc)) from None
+    try:
+        mesh.to_usd(args.out)
+    except (OSError, ValueError) as exc:
+        raise WarpblobError(str(exc)) from None
+    q = mesh.quality()
+    print(
+        f"{mesh.tets.shape[0]} tets, {mesh.nodes.shape[0]} nodes, dihedral angles "
+        f"[{q.dihedral_min:.2f}, {q.dihedral_max:.2f}] deg; wrote {args.out}"
+    )
+    return 0
+
+
+def cmd_quality(args) -> int:
+    from .mesh import TetMesh, format_quality
+
+    if not os.path.exists(args.file):
+        raise WarpblobError(f"file {args.file!r} does not exist")
+    mesh = TetMesh.from_usd(args.file, prim_path=args.prim)
+    print(format_quality(mesh.quality()))
+    return 0
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="warpblob", description="BlobTree modelling of soft tissue on NVIDIA Warp.")
     p.add_argument("--version", action="version", version=f"warpblob {__version__}")
@@ -210,6 +242,18 @@ def _parser() -> argparse.ArgumentParser:
     pg.add_argument("--out", required=True, help="output .usda/.usdc/.usd file")
     pg.add_argument("--png", default=None, help="also render a picture to this PNG file")
     pg.set_defaults(func=cmd_polygonize)
+
+    tt = sub.add_parser("tetrahedralize", help="fill a scene with tetrahedra (isosurface stuffing) into a UsdGeom.TetMesh")
+    tt.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")
+    tt.add_argument("--cellsize", type=float, required=True, help="lattice spacing at the boundary, model units")
+    tt.add_argument("--interior-cellsize", type=float, default=None, help="coarser interior spacing (graded meshes)")
+    tt.add_argument("--out", required=True, help="output .usda/.usdc/.usd file")
+    tt.set_defaults(func=cmd_tetrahedralize)
+
+    qu = sub.add_parser("quality", help="quality report of a UsdGeom.TetMesh file")
+    qu.add_argument("file", help="USD file holding a TetMesh")
+    qu.add_argument("--prim", default=None, help="TetMesh prim path (default: the default prim)")
+    qu.set_defaults(func=cmd_quality)
 
     i = sub.add_parser("info", help="counts, depth, box and bytes of a scene's linearized form")
     i.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")

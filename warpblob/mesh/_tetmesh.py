@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import pathlib
-import secrets
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -264,9 +263,9 @@ class TetMesh:
             WarpblobError: bad suffix, prim path or ``meters_per_unit``.
             OSError: the directory does not exist or USD could not write.
         """
-        from pxr import Sdf, Tf, Usd, UsdGeom, Vt
+        from pxr import Sdf, UsdGeom, Vt
 
-        from ..io.usd import METERS_PER_UNIT
+        from ..io.usd import METERS_PER_UNIT, export_atomically, new_stage
 
         target = pathlib.Path(path)
         if target.suffix not in _SUFFIXES:
@@ -279,9 +278,7 @@ class TetMesh:
             raise WarpblobError(f"TetMesh.to_usd: meters_per_unit must be a positive number, got {mpu!r}")
         if not target.parent.is_dir():
             raise FileNotFoundError(f"TetMesh.to_usd: directory {str(target.parent)!r} does not exist")
-        stage = Usd.Stage.CreateInMemory()
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-        UsdGeom.SetStageMetersPerUnit(stage, float(mpu))
+        stage = new_stage(meters_per_unit=float(mpu))
         prim = UsdGeom.TetMesh.Define(stage, text)
         stage.SetDefaultPrim(stage.GetPrimAtPath(Sdf.Path(text).GetPrefixes()[0]))
         points = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(self.nodes))
@@ -293,17 +290,7 @@ class TetMesh:
         if self.material is not None:
             attr = prim.GetPrim().CreateAttribute(_MATERIAL_ATTR, Sdf.ValueTypeNames.IntArray, custom=True)
             attr.Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(self.material)))
-        temporary = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp{target.suffix}"
-        try:
-            if not stage.GetRootLayer().Export(str(temporary)):
-                raise OSError(f"TetMesh.to_usd: USD could not write {str(temporary)!r}")
-            os.replace(temporary, target)
-        except Tf.ErrorException as err:
-            raise OSError(f"TetMesh.to_usd: USD could not write {str(target)!r}: {err}") from None
-        finally:
-            if temporary.exists():
-                temporary.unlink()
-        return target
+        return export_atomically(stage.GetRootLayer(), target, "TetMesh.to_usd")
 
     @classmethod
     def from_usd(cls, path, prim_path: str | None = None) -> TetMesh:
