@@ -18,7 +18,9 @@ _SIDE = wp.constant(SIDE)
 _SAMPLES = wp.constant(SAMPLES)
 _CELLS = wp.constant(CELLS)
 _APEX = wp.constant(APEX)
-SUB_SIDE = BLOCK // 2  # sub-blocks of 2^3 cells per block side
+SUB = 2  # cells per sub-block side
+SUB_SIDE = BLOCK // SUB  # sub-blocks per block side
+_SUB = wp.constant(SUB)
 _SUB_SIDE = wp.constant(SUB_SIDE)
 _SUBS = wp.constant(SUB_SIDE * SUB_SIDE * SUB_SIDE)
 
@@ -82,28 +84,52 @@ def make_kernels():
 
     @wp.kernel(enable_backward=False, module="unique")
     def classify_subblocks_kernel(
-        m: ModelArrays, g: Grid, iso: float, active: wp.array(dtype=wp.int32), offset: int,
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        active: wp.array(dtype=wp.int32),
+        side: int,
+        parent_side: int,
+        parent_states: wp.array(dtype=wp.int32),
+        offset: int,
         states: wp.array(dtype=wp.int32),
-    ):  # fmt: skip
-        """State of each 2^3-cell sub-block of the active blocks: 0 may hold
-        surface, 1 provably all inside, 2 provably all outside."""
+        computed: wp.array(dtype=wp.int32),
+    ):
+        """State of each sub-block of ``side``^3 cells of the active blocks: 0 may
+        hold surface, 1 provably all inside, 2 provably all outside. With
+        ``parent_side`` > 0, a sub-block whose parent (``parent_side``^3 cells)
+        is already proven inherits its state without an interval evaluation."""
         tid = wp.tid() + offset
-        a = tid // _SUBS
-        sb = tid - a * _SUBS
+        n = _BLOCK // side
+        per = n * n * n
+        a = tid // per
+        sb = tid - a * per
+        si = sb % n
+        sj = (sb // n) % n
+        sk = sb // (n * n)
+        if parent_side > 0:
+            pn = _BLOCK // parent_side
+            f = parent_side // side
+            ps = parent_states[a * pn * pn * pn + ((sk // f) * pn + sj // f) * pn + si // f]
+            if ps != 0:
+                states[tid] = ps
+                computed[tid] = 0
+                return
         c = block_coords(g, active[a])
-        si = sb % _SUB_SIDE
-        sj = (sb // _SUB_SIDE) % _SUB_SIDE
-        sk = sb // (_SUB_SIDE * _SUB_SIDE)
+        half = 0.5 * float(side)
         corner = wp.vec3(
-            float(c[0] * _BLOCK + 2 * si + 1), float(c[1] * _BLOCK + 2 * sj + 1), float(c[2] * _BLOCK + 2 * sk + 1)
+            float(c[0] * _BLOCK + side * si) + half,
+            float(c[1] * _BLOCK + side * sj) + half,
+            float(c[2] * _BLOCK + side * sk) + half,
         )
-        r = bound(m, g.origin + g.h * corner, g.h * 1.7320509 * 1.0001)
+        r = bound(m, g.origin + g.h * corner, half * g.h * 1.7320509 * 1.0001)
         state = int(0)
         if r[0] >= iso:
             state = 1
         elif r[1] < iso:
             state = 2
         states[tid] = state
+        computed[tid] = 1
 
     @wp.kernel(enable_backward=False, module="unique")
     def sample_blocks_kernel(
@@ -128,14 +154,14 @@ def make_kernels():
         needed = bool(False)
         proven = int(0)
         for dk in range(2):
-            sk = (k - 1 + dk) // 2
-            if sk >= 0 and sk < _SUB_SIDE and (dk == 0 or sk != (k - 1) // 2):
+            sk = (k - 1 + dk) // _SUB
+            if sk >= 0 and sk < _SUB_SIDE and (dk == 0 or sk != (k - 1) // _SUB):
                 for dj in range(2):
-                    sj = (j - 1 + dj) // 2
-                    if sj >= 0 and sj < _SUB_SIDE and (dj == 0 or sj != (j - 1) // 2):
+                    sj = (j - 1 + dj) // _SUB
+                    if sj >= 0 and sj < _SUB_SIDE and (dj == 0 or sj != (j - 1) // _SUB):
                         for di in range(2):
-                            si = (i - 1 + di) // 2
-                            if si >= 0 and si < _SUB_SIDE and (di == 0 or si != (i - 1) // 2):
+                            si = (i - 1 + di) // _SUB
+                            if si >= 0 and si < _SUB_SIDE and (di == 0 or si != (i - 1) // _SUB):
                                 st = states[a * _SUBS + (sk * _SUB_SIDE + sj) * _SUB_SIDE + si]
                                 if st == 0:
                                     needed = True

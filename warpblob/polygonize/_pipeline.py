@@ -170,9 +170,18 @@ def polygonize(
     n_samples = n_active * _kernels.SAMPLES
     n_cells = n_active * _kernels.CELLS
     check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 7, limit)
+    # two levels: sub-blocks of 4^3 cells, then of 2^3 cells inside the undecided ones
+    coarse_side = 2 * _kernels.SUB
+    n_coarse = n_active * (_kernels.BLOCK // coarse_side) ** 3
+    coarse = wp.empty(n_coarse, dtype=wp.int32, device=dev)
+    coarse_computed = wp.empty(n_coarse, dtype=wp.int32, device=dev)
+    launch(kernels["classify_sub"], n_coarse, [m, g, float(iso), active, coarse_side, 0, coarse], [coarse, coarse_computed], dev, threads)
     n_subs = n_active * _kernels.SUB_SIDE**3
     states = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
+    computed = wp.empty(n_subs, dtype=wp.int32, device=dev)
+    launch(
+        kernels["classify_sub"], n_subs, [m, g, float(iso), active, _kernels.SUB, coarse_side, coarse], [states, computed], dev, threads
+    )
     lap("classify_subblocks")
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
     evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
@@ -249,7 +258,7 @@ def polygonize(
 
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
     grid_evaluations = int(evaluated.numpy().sum()) if n_samples else 0
-    interval_evaluations = n_blocks + n_subs
+    interval_evaluations = n_blocks + n_coarse + (int(computed.numpy().sum()) if n_subs else 0)
     field_evaluations = grid_evaluations + root_steps
     stats.update(
         vertices=n_vertices,
