@@ -8,14 +8,10 @@ from ..field._kernels import ModelArrays, make_evaluate, make_segment_root, vec7
 from ._tables import APEX
 
 BLOCK = 8  # cells per block side
-SIDE = BLOCK + 1  # samples per block side
-SAMPLES = SIDE * SIDE * SIDE
 CELLS = BLOCK * BLOCK * BLOCK
 MAX_LOOP = 12
 
 _BLOCK = wp.constant(BLOCK)
-_SIDE = wp.constant(SIDE)
-_SAMPLES = wp.constant(SAMPLES)
 _CELLS = wp.constant(CELLS)
 _APEX = wp.constant(APEX)
 SUB = 2  # cells per sub-block side
@@ -53,8 +49,60 @@ def local_cell(l: int):
 
 
 @wp.func
-def sample_index(i: int, j: int, k: int):
-    return (k * _SIDE + j) * _SIDE + i
+def sub_state(
+    g: Grid,
+    gs: wp.vec3i,
+    block_map: wp.array(dtype=wp.int32),
+    block_states: wp.array(dtype=wp.int32),
+    states: wp.array(dtype=wp.int32),
+):
+    """State of the sub-block at global sub-block coordinates ``gs``: 0 may hold
+    surface, 1 inside, 2 outside (from its block when the block was rejected),
+    -1 outside the grid of blocks."""
+    bx = gs[0] // _SUB_SIDE
+    by = gs[1] // _SUB_SIDE
+    bz = gs[2] // _SUB_SIDE
+    if bx >= g.blocks[0] or by >= g.blocks[1] or bz >= g.blocks[2]:
+        return -1
+    b = (bz * g.blocks[1] + by) * g.blocks[0] + bx
+    a = block_map[b]
+    if a < 0:
+        return block_states[b]
+    ls = ((gs[2] - bz * _SUB_SIDE) * _SUB_SIDE + (gs[1] - by * _SUB_SIDE)) * _SUB_SIDE + (gs[0] - bx * _SUB_SIDE)
+    return states[a * _SUBS + ls]
+
+
+@wp.func
+def sample_at(
+    g: Grid,
+    a: int,
+    b: wp.vec3i,
+    li: int,
+    lj: int,
+    lk: int,
+    iso: float,
+    samples: wp.array(dtype=wp.float32),
+    block_map: wp.array(dtype=wp.int32),
+    block_states: wp.array(dtype=wp.int32),
+):
+    """Sample at block-local vertex (li, lj, lk) in [0, 8]^3 of active block ``a``
+    at block coordinates ``b``: its own, a neighbour's, or a rejected
+    neighbour's stand-in."""
+    if li < _BLOCK and lj < _BLOCK and lk < _BLOCK:
+        return samples[a * _CELLS + (lk * _BLOCK + lj) * _BLOCK + li]
+    gx = b[0] * _BLOCK + li
+    gy = b[1] * _BLOCK + lj
+    gz = b[2] * _BLOCK + lk
+    bx = gx // _BLOCK
+    by = gy // _BLOCK
+    bz = gz // _BLOCK
+    if bx >= g.blocks[0] or by >= g.blocks[1] or bz >= g.blocks[2]:
+        return iso - 0.5
+    nb = (bz * g.blocks[1] + by) * g.blocks[0] + bx
+    na = block_map[nb]
+    if na < 0:
+        return wp.where(block_states[nb] == 1, iso + 0.5, iso - 0.5)
+    return samples[na * _CELLS + ((gz - bz * _BLOCK) * _BLOCK + (gy - by * _BLOCK)) * _BLOCK + (gx - bx * _BLOCK)]
 
 
 @wp.func
@@ -70,57 +118,46 @@ def make_kernels():
     segment_root = make_segment_root(value)
 
     @wp.kernel(enable_backward=False, module="unique")
-    def classify_blocks_kernel(m: ModelArrays, g: Grid, iso: float, offset: int, flags: wp.array(dtype=wp.int32)):
+    def classify_blocks_kernel(
+        m: ModelArrays, g: Grid, iso: float, offset: int, flags: wp.array(dtype=wp.int32),
+        block_states: wp.array(dtype=wp.int32),
+    ):  # fmt: skip
+        """A block is active (flag 1, state 0) unless every point of it is
+        provably inside (state 1) or outside (state 2)."""
         b = wp.tid() + offset
         c = block_coords(g, b)
         half = 0.5 * float(_BLOCK) * g.h
         center = g.origin + g.h * float(_BLOCK) * wp.vec3(float(c[0]), float(c[1]), float(c[2])) + wp.vec3(half)
         r = bound(m, center, half * 1.7320509 * 1.0001)
-        # a block is active unless every point of it is provably on one side
-        active = int(1)
-        if r[1] < iso or r[0] >= iso:
-            active = 0
-        flags[b] = active
+        state = int(0)
+        if r[0] >= iso:
+            state = 1
+        elif r[1] < iso:
+            state = 2
+        flags[b] = wp.where(state == 0, 1, 0)
+        block_states[b] = state
 
     @wp.kernel(enable_backward=False, module="unique")
     def classify_subblocks_kernel(
-        m: ModelArrays,
-        g: Grid,
-        iso: float,
-        active: wp.array(dtype=wp.int32),
-        side: int,
-        parent_side: int,
-        parent_states: wp.array(dtype=wp.int32),
-        offset: int,
+        m: ModelArrays, g: Grid, iso: float, active: wp.array(dtype=wp.int32), offset: int,
         states: wp.array(dtype=wp.int32),
-        computed: wp.array(dtype=wp.int32),
-    ):
-        """State of each sub-block of ``side``^3 cells of the active blocks: 0 may
-        hold surface, 1 provably all inside, 2 provably all outside. With
-        ``parent_side`` > 0, a sub-block whose parent (``parent_side``^3 cells)
-        is already proven inherits its state without an interval evaluation."""
+    ):  # fmt: skip
+        """State of each sub-block (2^3 cells) of the active blocks: 0 may hold
+        surface, 1 provably all inside, 2 provably all outside. (A coarser
+        first level of 4^3 cells saved evaluations but not time: bigger balls
+        cost more to bound.)"""
         tid = wp.tid() + offset
-        n = _BLOCK // side
-        per = n * n * n
-        a = tid // per
-        sb = tid - a * per
-        si = sb % n
-        sj = (sb // n) % n
-        sk = sb // (n * n)
-        if parent_side > 0:
-            pn = _BLOCK // parent_side
-            f = parent_side // side
-            ps = parent_states[a * pn * pn * pn + ((sk // f) * pn + sj // f) * pn + si // f]
-            if ps != 0:
-                states[tid] = ps
-                computed[tid] = 0
-                return
+        a = tid // _SUBS
+        sb = tid - a * _SUBS
         c = block_coords(g, active[a])
-        half = 0.5 * float(side)
+        si = sb % _SUB_SIDE
+        sj = (sb // _SUB_SIDE) % _SUB_SIDE
+        sk = sb // (_SUB_SIDE * _SUB_SIDE)
+        half = 0.5 * float(_SUB)
         corner = wp.vec3(
-            float(c[0] * _BLOCK + side * si) + half,
-            float(c[1] * _BLOCK + side * sj) + half,
-            float(c[2] * _BLOCK + side * sk) + half,
+            float(c[0] * _BLOCK + _SUB * si) + half,
+            float(c[1] * _BLOCK + _SUB * sj) + half,
+            float(c[2] * _BLOCK + _SUB * sk) + half,
         )
         r = bound(m, g.origin + g.h * corner, half * g.h * 1.7320509 * 1.0001)
         state = int(0)
@@ -129,7 +166,6 @@ def make_kernels():
         elif r[1] < iso:
             state = 2
         states[tid] = state
-        computed[tid] = 1
 
     @wp.kernel(enable_backward=False, module="unique")
     def sample_blocks_kernel(
@@ -137,39 +173,40 @@ def make_kernels():
         g: Grid,
         iso: float,
         active: wp.array(dtype=wp.int32),
+        block_map: wp.array(dtype=wp.int32),
+        block_states: wp.array(dtype=wp.int32),
         states: wp.array(dtype=wp.int32),
         offset: int,
         samples: wp.array(dtype=wp.float32),
         evaluated: wp.array(dtype=wp.int32),
     ):
-        """Field at the block's vertices that touch a sub-block which may hold
-        surface; elsewhere a stand-in value on the proven side of ``iso``."""
+        """Field at the vertices each active block owns (local [0, 8)^3), where
+        the vertex touches a sub-block that may hold surface (in this block or
+        a neighbour); elsewhere a stand-in value on the proven side of ``iso``.
+        Every grid vertex has one owner, so every cell sees the same values."""
         tid = wp.tid() + offset
-        a = tid // _SAMPLES
-        s = tid - a * _SAMPLES
+        a = tid // _CELLS
         c = block_coords(g, active[a])
-        i = s % _SIDE
-        j = (s // _SIDE) % _SIDE
-        k = s // (_SIDE * _SIDE)
+        lc = local_cell(tid - a * _CELLS)
+        v = wp.vec3i(c[0] * _BLOCK + lc[0], c[1] * _BLOCK + lc[1], c[2] * _BLOCK + lc[2])
         needed = bool(False)
         proven = int(0)
         for dk in range(2):
-            sk = (k - 1 + dk) // _SUB
-            if sk >= 0 and sk < _SUB_SIDE and (dk == 0 or sk != (k - 1) // _SUB):
+            zk = v[2] - 1 + dk
+            if zk >= 0 and (dk == 0 or zk // _SUB != (v[2] - 1) // _SUB or v[2] == 0):
                 for dj in range(2):
-                    sj = (j - 1 + dj) // _SUB
-                    if sj >= 0 and sj < _SUB_SIDE and (dj == 0 or sj != (j - 1) // _SUB):
+                    zj = v[1] - 1 + dj
+                    if zj >= 0 and (dj == 0 or zj // _SUB != (v[1] - 1) // _SUB or v[1] == 0):
                         for di in range(2):
-                            si = (i - 1 + di) // _SUB
-                            if si >= 0 and si < _SUB_SIDE and (di == 0 or si != (i - 1) // _SUB):
-                                st = states[a * _SUBS + (sk * _SUB_SIDE + sj) * _SUB_SIDE + si]
+                            zi = v[0] - 1 + di
+                            if zi >= 0 and (di == 0 or zi // _SUB != (v[0] - 1) // _SUB or v[0] == 0):
+                                st = sub_state(g, wp.vec3i(zi // _SUB, zj // _SUB, zk // _SUB), block_map, block_states, states)
                                 if st == 0:
                                     needed = True
-                                else:
+                                elif st > 0:
                                     proven = st
         if needed:
-            p = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
-            samples[tid] = value_only(m, p, 0.0)[0]
+            samples[tid] = value_only(m, vertex_position(g, v[0], v[1], v[2]), 0.0)[0]
             evaluated[tid] = 1
         else:
             samples[tid] = wp.where(proven == 1, iso + 0.5, iso - 0.5)
@@ -181,6 +218,8 @@ def make_kernels():
         iso: float,
         active: wp.array(dtype=wp.int32),
         samples: wp.array(dtype=wp.float32),
+        block_map: wp.array(dtype=wp.int32),
+        block_states: wp.array(dtype=wp.int32),
         table: wp.array2d(dtype=wp.int32),
         faces: wp.array(dtype=wp.vec4i),
         offset: int,
@@ -200,16 +239,15 @@ def make_kernels():
         gx = c[0] * _BLOCK + i
         gy = c[1] * _BLOCK + j
         gz = c[2] * _BLOCK + k
-        base = a * _SAMPLES
-        s0 = inside(samples[base + sample_index(i, j, k)], iso)
+        s0 = inside(sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states), iso)
         # crossed edges owned by vertex (i, j, k): +x, +y, +z, inside the grid
         mask = int(0)
         if gx <= g.cells[0] and gy <= g.cells[1] and gz <= g.cells[2]:
-            if gx < g.cells[0] and inside(samples[base + sample_index(i + 1, j, k)], iso) != s0:
+            if gx < g.cells[0] and inside(sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states), iso) != s0:
                 mask = mask | 1
-            if gy < g.cells[1] and inside(samples[base + sample_index(i, j + 1, k)], iso) != s0:
+            if gy < g.cells[1] and inside(sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states), iso) != s0:
                 mask = mask | 2
-            if gz < g.cells[2] and inside(samples[base + sample_index(i, j, k + 1)], iso) != s0:
+            if gz < g.cells[2] and inside(sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states), iso) != s0:
                 mask = mask | 4
         edge_masks[tid] = mask
         vertex_counts[tid] = (mask & 1) + ((mask >> 1) & 1) + ((mask >> 2) & 1)
@@ -221,7 +259,7 @@ def make_kernels():
             vals = vec8()
             config = int(0)
             for n in range(8):
-                v = samples[base + sample_index(i + (n & 1), j + ((n >> 1) & 1), k + ((n >> 2) & 1))] - iso
+                v = sample_at(g, a, c, i + (n & 1), j + ((n >> 1) & 1), k + ((n >> 2) & 1), iso, samples, block_map, block_states) - iso
                 vals[n] = v
                 if v >= 0.0:
                     config = config | (1 << n)
@@ -263,6 +301,8 @@ def make_kernels():
         max_iterations: int,
         active: wp.array(dtype=wp.int32),
         samples: wp.array(dtype=wp.float32),
+        block_map: wp.array(dtype=wp.int32),
+        block_states: wp.array(dtype=wp.int32),
         edge_masks: wp.array(dtype=wp.int32),
         vertex_offsets: wp.array(dtype=wp.int32),
         offset: int,
@@ -282,8 +322,7 @@ def make_kernels():
         j = lc[1]
         k = lc[2]
         p0 = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
-        base = a * _SAMPLES
-        f0 = samples[base + sample_index(i, j, k)] - iso
+        f0 = sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states) - iso
         out = vertex_offsets[tid]
         for axis in range(3):
             if (mask >> axis) & 1 != 0:
@@ -291,11 +330,11 @@ def make_kernels():
                 step[axis] = g.h
                 f1 = float(0.0)
                 if axis == 0:
-                    f1 = samples[base + sample_index(i + 1, j, k)] - iso
+                    f1 = sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states) - iso
                 elif axis == 1:
-                    f1 = samples[base + sample_index(i, j + 1, k)] - iso
+                    f1 = sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states) - iso
                 else:
-                    f1 = samples[base + sample_index(i, j, k + 1)] - iso
+                    f1 = sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states) - iso
                 r, t, count = segment_root(m, p0, step, f0, f1, iso, tolerance, max_iterations)
                 grad = wp.vec3(r[1], r[2], r[3])
                 positions[out] = p0 + t * step

@@ -150,7 +150,7 @@ def polygonize(
     g, cells, blocks = grid
     n_blocks = int(np.prod(blocks))
     check_memory("polygonize", "block classification", n_blocks * 16, limit)
-    if n_blocks > np.iinfo(np.int32).max // _kernels.SAMPLES:
+    if n_blocks > np.iinfo(np.int32).max // _kernels.CELLS:
         raise ResourceError(f"polygonize: {n_blocks} blocks exceed the int32 index range; use a larger cellsize")
     kernels = _kernel_set()
     table, faces, edge_info = _device_tables(dev)
@@ -158,7 +158,8 @@ def polygonize(
 
     # 1. block rejection by interval bounds
     flags = wp.empty(n_blocks, dtype=wp.int32, device=dev)
-    launch(kernels["classify"], n_blocks, [m, g, float(iso)], [flags], dev, threads)
+    block_states = wp.empty(n_blocks, dtype=wp.int32, device=dev)
+    launch(kernels["classify"], n_blocks, [m, g, float(iso)], [flags, block_states], dev, threads)
     active = compact(flags, dev, threads)
     n_active = active.shape[0]
     block_map = wp.full(n_blocks, -1, dtype=wp.int32, device=dev)
@@ -167,25 +168,18 @@ def polygonize(
     stats.update(blocks_total=n_blocks, blocks_rejected=n_blocks - n_active)
 
     # 2. field at the vertices of active blocks
-    n_samples = n_active * _kernels.SAMPLES
+    n_samples = n_active * _kernels.CELLS  # one sample per owned vertex
     n_cells = n_active * _kernels.CELLS
     check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 7, limit)
-    # two levels: sub-blocks of 4^3 cells, then of 2^3 cells inside the undecided ones
-    coarse_side = 2 * _kernels.SUB
-    n_coarse = n_active * (_kernels.BLOCK // coarse_side) ** 3
-    coarse = wp.empty(n_coarse, dtype=wp.int32, device=dev)
-    coarse_computed = wp.empty(n_coarse, dtype=wp.int32, device=dev)
-    launch(kernels["classify_sub"], n_coarse, [m, g, float(iso), active, coarse_side, 0, coarse], [coarse, coarse_computed], dev, threads)
     n_subs = n_active * _kernels.SUB_SIDE**3
     states = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    computed = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    launch(
-        kernels["classify_sub"], n_subs, [m, g, float(iso), active, _kernels.SUB, coarse_side, coarse], [states, computed], dev, threads
-    )
+    launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
     lap("classify_subblocks")
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
     evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
-    launch(kernels["sample"], n_samples, [m, g, float(iso), active, states], [samples, evaluated], dev, threads)
+    launch(
+        kernels["sample"], n_samples, [m, g, float(iso), active, block_map, block_states, states], [samples, evaluated], dev, threads
+    )
     lap("sample")
 
     # 3. crossed edges, cell configurations, counts and prefix sums
@@ -197,7 +191,7 @@ def polygonize(
     launch(
         kernels["count"],
         n_cells,
-        [g, float(iso), active, samples, table, faces],
+        [g, float(iso), active, samples, block_map, block_states, table, faces],
         [edge_masks, vertex_counts, entries, triangle_counts, centre_counts],
         dev,
         threads,
@@ -218,7 +212,7 @@ def polygonize(
     launch(
         kernels["vertex"],
         n_cells,
-        [m, g, float(iso), float(tolerance), iterations, active, samples, edge_masks, vertex_offsets],
+        [m, g, float(iso), float(tolerance), iterations, active, samples, block_map, block_states, edge_masks, vertex_offsets],
         [positions, normals, colors, evaluations],
         dev,
         threads,
@@ -258,7 +252,7 @@ def polygonize(
 
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
     grid_evaluations = int(evaluated.numpy().sum()) if n_samples else 0
-    interval_evaluations = n_blocks + n_coarse + (int(computed.numpy().sum()) if n_subs else 0)
+    interval_evaluations = n_blocks + n_subs
     field_evaluations = grid_evaluations + root_steps
     stats.update(
         vertices=n_vertices,

@@ -307,6 +307,113 @@ def incident_edge(l: Lattice, q: wp.vec4i, k: int):
     return wp.vec3i(point_index(l, 1, c - wp.vec3i(d & 1, (d >> 1) & 1, d >> 2)), 3 + d, 0)
 
 
+UNDECIDED = 0
+KEEP = 1  # the point stays where it is
+MOVE = 2  # the point is warped onto a cut point
+_UNDECIDED = wp.constant(UNDECIDED)
+_KEEP = wp.constant(KEEP)
+_MOVE = wp.constant(MOVE)
+
+
+@wp.func
+def violator(
+    l: Lattice,
+    q: wp.vec4i,
+    k: int,
+    alpha_long: float,
+    alpha_short: float,
+    masks: wp.array(dtype=wp.int32),
+    cut_offsets: wp.array(dtype=wp.int32),
+    cut_params: wp.array(dtype=wp.float32),
+):
+    """Cut point on edge ``k`` (0-13) of point ``q`` that violates ``q``, as (cut index, other end)
+    with its distance from ``q``; cut index -1 when there is none."""
+    e = incident_edge(l, q, k)
+    out = wp.vec2i(-1, -1)
+    d = float(0.0)
+    if e[0] >= 0:
+        mask = masks[e[0]]
+        if (mask >> e[1]) & 1 != 0:
+            cut = cut_offsets[e[0]] + bits_below(mask, e[1])
+            t = cut_params[cut]
+            other = e[0]
+            if e[2] == 1:
+                f = edge_end(q, e[1])
+                other = point_index(l, f[0], wp.vec3i(f[1], f[2], f[3]))
+            else:
+                t = 1.0 - t
+            alpha = alpha_long
+            length = l.h
+            if e[1] >= 3:
+                alpha = alpha_short
+                length = l.h * _SHORT
+            if t < alpha:
+                out = wp.vec2i(cut, other)
+                d = t * length
+    return out, d
+
+
+@wp.kernel(enable_backward=False)
+def violated_kernel(
+    l: Lattice,
+    alpha_long: float,
+    alpha_short: float,
+    masks: wp.array(dtype=wp.int32),
+    cut_offsets: wp.array(dtype=wp.int32),
+    cut_params: wp.array(dtype=wp.float32),
+    offset: int,
+    states: wp.array(dtype=wp.int32),
+):
+    """A point with no violating cut point keeps its place; a violated one is undecided."""
+    p = wp.tid() + offset
+    q = point_coords(l, p)
+    state = _KEEP
+    for k in range(14):
+        v, d = violator(l, q, k, alpha_long, alpha_short, masks, cut_offsets, cut_params)
+        if v[0] >= 0:
+            state = _UNDECIDED
+    states[p] = state
+
+
+@wp.kernel(enable_backward=False)
+def resolve_kernel(
+    l: Lattice,
+    alpha_long: float,
+    alpha_short: float,
+    masks: wp.array(dtype=wp.int32),
+    cut_offsets: wp.array(dtype=wp.int32),
+    cut_params: wp.array(dtype=wp.float32),
+    states: wp.array(dtype=wp.int32),
+    offset: int,
+    next_states: wp.array(dtype=wp.int32),
+    changed: wp.array(dtype=wp.int32),
+):
+    """One round of the forced decisions: an undecided point with a violating cut point whose
+    other end stays moves (onto such a cut point); one whose violating cut points all lead
+    to moving points stays (they all disappear). Decisions never change once made."""
+    p = wp.tid() + offset
+    state = states[p]
+    if state == _UNDECIDED:
+        q = point_coords(l, p)
+        any_keep = bool(False)
+        all_move = bool(True)
+        for k in range(14):
+            v, d = violator(l, q, k, alpha_long, alpha_short, masks, cut_offsets, cut_params)
+            if v[0] >= 0:
+                s = states[v[1]]
+                if s == _KEEP:
+                    any_keep = True
+                if s != _MOVE:
+                    all_move = False
+        if any_keep:
+            state = _MOVE
+        elif all_move:
+            state = _KEEP
+        if state != _UNDECIDED:
+            wp.atomic_add(changed, 0, 1)
+    next_states[p] = state
+
+
 @wp.kernel(enable_backward=False)
 def warp_points_kernel(
     l: Lattice,
@@ -317,37 +424,33 @@ def warp_points_kernel(
     masks: wp.array(dtype=wp.int32),
     cut_offsets: wp.array(dtype=wp.int32),
     cut_params: wp.array(dtype=wp.float32),
+    states: wp.array(dtype=wp.int32),
     offset: int,
     labels: wp.array(dtype=wp.int32),
     targets: wp.array(dtype=wp.int32),
 ):
-    """Warping: a point with a cut point closer than alpha times the edge length on one of
-    its 14 edges moves to the closest such cut point and gets label 0 (on the surface)."""
+    """Warping. Points left undecided by the forced rounds (cycles of violations) are settled
+    by sign: inside ones stay, outside ones move. A moving point goes to its closest violating
+    cut point whose other end stays, and gets label 0 (on the surface)."""
     p = wp.tid() + offset
     q = point_coords(l, p)
     s = label_of(values[p], iso)
+    state = states[p]
+    if state == _UNDECIDED:
+        state = wp.where(s > 0, _KEEP, _MOVE)
     target = int(-1)
-    if s != 0:
+    if state == _MOVE:
         best = float(1.0e30)
         for k in range(14):
-            e = incident_edge(l, q, k)
-            if e[0] >= 0:
-                mask = masks[e[0]]
-                if (mask >> e[1]) & 1 != 0:
-                    cut = cut_offsets[e[0]] + bits_below(mask, e[1])
-                    t = cut_params[cut]
-                    if e[2] == 0:
-                        t = 1.0 - t
-                    alpha = alpha_long
-                    length = l.h
-                    if e[1] >= 3:
-                        alpha = alpha_short
-                        length = l.h * _SHORT
-                    d = t * length
-                    # ties go to the smaller cut index, so the result does not depend on the edge order
-                    if t < alpha and (d < best or (d == best and cut < target)):
-                        best = d
-                        target = cut
+            v, d = violator(l, q, k, alpha_long, alpha_short, masks, cut_offsets, cut_params)
+            if v[0] >= 0:
+                so = states[v[1]]
+                if so == _UNDECIDED:
+                    so = wp.where(label_of(values[v[1]], iso) > 0, _KEEP, _MOVE)
+                # ties go to the smaller cut index, so the result does not depend on the edge order
+                if so == _KEEP and (d < best or (d == best and v[0] < target)):
+                    best = d
+                    target = v[0]
         if target >= 0:
             s = 0
     labels[p] = s

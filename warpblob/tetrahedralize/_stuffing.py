@@ -23,6 +23,7 @@ ALPHA_SHORT = 0.41189
 _WHO = "tetrahedralize"
 _TOLERANCE = 1e-4  # largest |F - iso| of a cut point
 _ROOT_ITERATIONS = 32
+_WARP_ROUNDS = 4  # rounds of warp decisions per host sync (chains of violations are short)
 
 _CACHE: dict = {}
 
@@ -213,13 +214,30 @@ def tetrahedralize(
     )
     lap("cut")
 
-    # 4. warping: lattice points too close to a cut point move onto it
+    # 4. warping: lattice points too close to a cut point move onto it. Which violated points
+    # move is settled first so that no point moves onto a cut point whose other end moves too
+    # (rounds of forced decisions until none changes; one host sync per _WARP_ROUNDS rounds)
+    warp_args = [lat, a_long, a_short, masks, cut_offsets, cut_params]
+    states = wp.empty(n_points, dtype=wp.int32, device=dev)
+    launch(_kernels.violated_kernel, n_points, warp_args, [states], dev, threads)
+    spare = wp.empty(n_points, dtype=wp.int32, device=dev)
+    changed = wp.zeros(1, dtype=wp.int32, device=dev)
+    rounds = 0
+    while True:
+        for r in range(_WARP_ROUNDS):
+            if r == _WARP_ROUNDS - 1:
+                changed.zero_()
+            launch(_kernels.resolve_kernel, n_points, [*warp_args, states], [spare, changed], dev, threads)
+            states, spare = spare, states
+        rounds += _WARP_ROUNDS
+        if int(changed.numpy()[0]) == 0:
+            break
     labels = wp.empty(n_points, dtype=wp.int32, device=dev)
     targets = wp.empty(n_points, dtype=wp.int32, device=dev)
     launch(
         _kernels.warp_points_kernel,
         n_points,
-        [lat, iso, a_long, a_short, values, masks, cut_offsets, cut_params],
+        [lat, iso, a_long, a_short, values, masks, cut_offsets, cut_params, states],
         [labels, targets],
         dev,
         threads,
@@ -286,6 +304,7 @@ def tetrahedralize(
         interval_evaluations=n_blocks + int(bounded.numpy().sum()),
         cut_points=n_cuts,
         warped_points=int(np.count_nonzero(targets.numpy() >= 0)),
+        warp_rounds=rounds,
         tets=n_raw,
         nodes=n_nodes,
         seconds=seconds,
