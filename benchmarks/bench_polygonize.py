@@ -21,7 +21,9 @@ supports overlap matter, so the sum is taken per grid cell of the operator
 and the largest cell sum is used. Models with warps are not benchmarked here.
 
 Timings are warm (every kernel compiled and run once first), best of three;
-dense peers include the dense field evaluation. Writes
+dense peers include the dense field evaluation. Triangle quality: the share
+of triangles with a smallest angle under 10 degrees, warpblob against Warp's
+IsoSurfaceMarchingCubes on the same grid. Writes
 benchmarks/results/bench_polygonize.json.
 """
 
@@ -39,6 +41,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import warpblob as wb  # noqa: E402
 from _common import best_of, machine, table, write_json  # noqa: E402
+from warpblob.mesh._surface import triangle_min_angles  # noqa: E402
 from warpblob.tree import _kinds  # noqa: E402
 
 THESIS_MEDUSA_MS = {0.01: 5220, 0.03: 3441, 0.05: 1071, 0.10: 264, 0.14: 108}  # one core, AVX (SPEC 2.4)
@@ -85,8 +88,18 @@ def dense_field(lm, lo, nodes, h):
     return wb.field(lm, pts).reshape(tuple(nodes))
 
 
-def run_warpblob(lm, h):
+SKINNY_DEGREES = 10.0
+
+
+def skinny_share(vertices, faces) -> float:
+    """Share of triangles whose smallest angle is under 10 degrees."""
+    return float(np.mean(triangle_min_angles(vertices, faces) < SKINNY_DEGREES)) if len(faces) else 0.0
+
+
+def run_warpblob(lm, h, quality=None):
     mesh = wb.polygonize(lm, cellsize=h)
+    if quality is not None:
+        quality["warpblob"] = skinny_share(mesh.vertices, mesh.faces)
     return mesh.face_count, mesh.stats["field_evaluations"] + mesh.stats["interval_evaluations"]
 
 
@@ -106,12 +119,14 @@ def run_sparse(lm, h, lip):
     return faces.shape[0] // 3, count[0]
 
 
-def run_dense_warp(lm, h):
+def run_dense_warp(lm, h, quality=None):
     lo, nodes = grid_of(lm, h)
     f = dense_field(lm, lo, nodes, h)
     hi = lo + h * (nodes - 1)
     mc = wp.geometry.IsoSurfaceMarchingCubes(int(nodes[0]), int(nodes[1]), int(nodes[2]), tuple(lo), tuple(hi))
     mc.surface(wp.array(f, dtype=wp.float32), 0.5)
+    if quality is not None:
+        quality["dense_warp_mc"] = skinny_share(mc.verts.numpy(), mc.indices.numpy().reshape(-1, 3))
     return mc.indices.shape[0] // 3, int(np.prod(nodes))
 
 
@@ -148,6 +163,12 @@ def main(argv=None):
                 "dense_warp_mc": (lambda: run_dense_warp(lm, h)) if dense_ok else None,
                 "dense_vtk_fe": (lambda: run_dense_vtk(lm, h)) if dense_ok else None,
             }
+            quality = {}
+            run_warpblob(lm, h, quality)
+            if dense_ok:
+                run_dense_warp(lm, h, quality)
+            row["warpblob_skinny"] = quality["warpblob"]
+            row["dense_warp_mc_skinny"] = quality.get("dense_warp_mc")
             for key, fn in peers.items():
                 if fn is None:
                     continue
@@ -165,6 +186,7 @@ def main(argv=None):
     for key, label in (("warpblob", "wb"), ("sparse_mc", "sparseMC"), ("dense_warp_mc", "warpMC"), ("dense_vtk_fe", "vtkFE")):
         cols += [(f"{key}_s", f"{label} s", ".3f"), (f"{key}_fvept", f"{label} FVEPT", ".1f")]
     cols += [("warpblob_tris", "wb tris", "d"), ("speedup_vs_fastest_peer", "speedup", ".1f"), ("thesis_1core_avx_s", "thesis s", ".3f")]
+    cols += [("warpblob_skinny", "wb <10deg", ".3f"), ("dense_warp_mc_skinny", "warpMC <10deg", ".3f")]
     print(table(rows, cols))
     path = write_json("bench_polygonize.json", {"benchmark": "polygonize", "warm": True, "machine": machine(), "rows": rows})
     print(f"wrote {path}")

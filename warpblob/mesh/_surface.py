@@ -6,7 +6,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SurfaceMesh"]
+__all__ = ["SurfaceMesh", "triangle_min_angles"]
+
+
+def triangle_min_angles(vertices, faces) -> np.ndarray:
+    """Smallest interior angle of each triangle of ``faces`` (F, 3) over ``vertices`` (V, 3), degrees."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    angles = []
+    for k in range(3):
+        a, b, c = v[f[:, k]], v[f[:, (k + 1) % 3]], v[f[:, (k + 2) % 3]]
+        u, w = b - a, c - a
+        nu, nw = np.linalg.norm(u, axis=1), np.linalg.norm(w, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.einsum("ij,ij->i", u, w) / (nu * nw)
+        angles.append(np.degrees(np.arccos(np.clip(np.nan_to_num(cos, nan=1.0), -1.0, 1.0))))
+    return np.min(angles, axis=0)
 
 
 @dataclass(eq=False)
@@ -52,6 +67,10 @@ class SurfaceMesh:
         v = self.vertices.astype(np.float64)
         a, b, c = v[self.faces[:, 0]], v[self.faces[:, 1]], v[self.faces[:, 2]]
         return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+    def min_angles(self) -> np.ndarray:
+        """Smallest interior angle of each triangle, degrees, (F,) float64 (0 for degenerate ones)."""
+        return triangle_min_angles(self.vertices, self.faces)
 
     def edge_face_counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Undirected edges (E, 2) and how many faces use each."""
