@@ -278,6 +278,81 @@ def test_scenes(name):
     assert np.all(mesh.nodes >= lo - 1e-6) and np.all(mesh.nodes <= hi + 1e-6)
 
 
+# (scene, cellsize): the worst meshes of a sweep over the reference scenes at cellsizes 0.06-0.15;
+# mug at 0.097 gave 10.58 deg when a point could move onto a cut point whose other end moved too
+@pytest.mark.parametrize("name,cellsize", [("mug", 0.097), ("mug", 0.105), ("tumor", 0.14), ("tumor", 0.085)])
+def test_dihedral_bounds_over_cellsizes(name, cellsize):
+    model = wb.scenes.ALL[name]()
+    q = tetrahedralize(model, cellsize=cellsize).quality()
+    assert q.inverted_count == 0
+    assert PAPER_MIN_DIHEDRAL <= q.dihedral_min and q.dihedral_max <= PAPER_MAX_DIHEDRAL, (q.dihedral_min, q.dihedral_max)
+
+
+def _warp_state(monkeypatch, model, cellsize):
+    """Internals of one run: (lattice, values, masks, cut_offsets, cut_params, labels, targets)."""
+    from warpblob.tetrahedralize import _kernels, _stuffing
+
+    seen = {}
+    launch = _stuffing.launch
+
+    def spy(kernel, dim, before, after, device, threads=None):
+        launch(kernel, dim, before, after, device, threads)
+        if kernel is _kernels.warp_points_kernel:
+            seen["before"], seen["after"] = before, after
+
+    monkeypatch.setattr(_stuffing, "launch", spy)
+    tetrahedralize(model, cellsize=cellsize)
+    lat, _, _, _, values, masks, offsets, params, _ = seen["before"]
+    labels, targets = seen["after"]
+    return lat, values.numpy(), masks.numpy(), offsets.numpy(), params.numpy(), labels.numpy(), targets.numpy()
+
+
+def test_warping_never_moves_both_ends_of_an_edge_and_keeps_cut_points_clear(monkeypatch):
+    lat, values, masks, offsets, params, labels, targets = _warp_state(monkeypatch, wb.scenes.mug(), 0.097)
+    n = np.array([lat.cells[0], lat.cells[1], lat.cells[2]])
+    black = lat.black
+
+    def half(p):  # half-cell coordinates of point p
+        red = p >= black
+        q = np.where(red, p - black, p)
+        m = np.where(red[:, None], n, n + 1)
+        c = np.stack([q % m[:, 0], (q // m[:, 0]) % m[:, 1], q // (m[:, 0] * m[:, 1])], axis=1)
+        return 2 * c + red[:, None]
+
+    def index(h):  # point index of half-cell coordinates h
+        red = h[:, 0] % 2 == 1
+        c = (h - red[:, None]) // 2
+        m = np.where(red[:, None], n, n + 1)
+        return np.where(red, black, 0) + (c[:, 2] * m[:, 1] + c[:, 1]) * m[:, 0] + c[:, 0]
+
+    # every cut point: its two ends and its parameter from the owner
+    owner = np.repeat(np.arange(masks.size), [bin(int(m)).count("1") for m in masks])
+    slot = np.array([b for m in masks if m for b in range(11) if (int(m) >> b) & 1])
+    a = half(owner)
+    step = np.zeros_like(a)
+    axis = slot < 3
+    step[axis, slot[axis]] = 2
+    corner = slot[~axis] - 3
+    step[~axis] = 2 * np.stack([corner & 1, (corner >> 1) & 1, corner >> 2], axis=1) - 1
+    other = index(a + step)
+    alpha = np.where(axis, ALPHA_LONG, ALPHA_SHORT)
+    moved = targets >= 0
+    assert moved.sum() > 100 and np.all(labels[moved] == 0)
+    # a moved point sits on a cut point of one of its edges whose other end stays
+    t = targets[moved]
+    ends = np.stack([owner[t], other[t]], axis=1)
+    me = np.flatnonzero(moved)
+    assert np.all((ends[:, 0] == me) | (ends[:, 1] == me))
+    far = np.where(ends[:, 0] == me, ends[:, 1], ends[:, 0])
+    assert not np.any(moved[far])
+    dist = np.where(ends[:, 0] == me, params[t], 1.0 - params[t])
+    assert np.all(dist < alpha[t])
+    # a cut point that survives (both ends stay, on opposite sides) is clear of both ends
+    live = ~moved[owner] & ~moved[other]
+    assert np.all(labels[owner[live]] * labels[other[live]] == -1)
+    assert np.all((params[live] >= alpha[live]) & (params[live] <= 1.0 - alpha[live]))
+
+
 def test_random_blobs():
     rng = np.random.default_rng(2)
     model = wb.Blend(*[wb.Point(tuple(rng.uniform(-1, 1, 3)), float(rng.uniform(0.3, 0.8))) for _ in range(20)])
