@@ -341,7 +341,7 @@ def assert_values_close(model, pts, values, ref, what="field"):
         )
 
 
-def gradient_check(model, pts, device, *, min_points=150, margin=1e-3, smooth=None):
+def check_gradients(model, pts, device, *, min_points=150, margin=1e-3, smooth=None):
     """Engine gradients vs FD of the reference and vs the reference's analytic gradient.
 
     ``smooth``: None checks every usable point; False / True only those whose
@@ -447,7 +447,7 @@ def test_random_model_gradients_and_colors(seed, device):
     # gradients on a subset (FD of the whole model costs 6 reference evaluations);
     # points fed by a SmoothBlend are checked separately below
     sub = np.flatnonzero(safe & (ref.f < 0.98) & ~ref.smooth)[::2]
-    gradient_check(model, pts[sub], device, min_points=300, smooth=False)
+    check_gradients(model, pts[sub], device, min_points=300, smooth=False)
 
 
 
@@ -456,7 +456,7 @@ def test_random_model_gradients_and_colors(seed, device):
 def test_random_model_gradients_through_smooth_blends(seed, device):
     model, pts, ref = _random_case(seed)
     sub = np.flatnonzero((ref.margin > 1e-3) & (ref.f > 0.02) & (ref.f < 0.98) & ref.smooth)
-    gradient_check(model, pts[sub], device, min_points=100, smooth=True)
+    check_gradients(model, pts[sub], device, min_points=100, smooth=True)
 
 
 # ----------------------------------------------------------------------------
@@ -503,7 +503,7 @@ def test_gradient(case, device):
     model = GRADIENT_CASES[case](rng)
     lo, hi = model.bounds()
     pts = _f32(lo + (hi - lo) * rng.random((5000, 3)))
-    gradient_check(model, pts, device)
+    check_gradients(model, pts, device)
 
 
 @pytest.mark.parametrize(
@@ -514,7 +514,7 @@ def test_gradient_smooth_blend(k, device):
     model = wb.SmoothBlend(*_pair(rng, "disc", "segment"), k=k)
     lo, hi = model.bounds()
     pts = _f32(lo + (hi - lo) * rng.random((5000, 3)))
-    gradient_check(model, pts, device)
+    check_gradients(model, pts, device)
 
 
 def test_smooth_blend_with_one_live_operand_has_that_operands_gradient(device):

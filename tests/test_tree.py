@@ -108,7 +108,9 @@ def test_non_coplanar_message_names_the_vertex_and_offset():
 
 
 def test_slightly_non_coplanar_polygon_within_tolerance_is_accepted():
-    wb.Polygon([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 1e-9]], 1.0)
+    poly = wb.Polygon([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 1e-9]], 1.0)
+    lo, hi = poly.bounds()
+    assert np.all(np.isfinite(lo)) and np.all(hi - lo > 1.9)
 
 
 def test_difference_with_one_operand_raises_model_error():
@@ -140,18 +142,25 @@ def test_sweep_path_with_a_right_angle_towards_the_normal_is_accepted():
 
 
 def test_sweep_path_with_a_right_angle_is_accepted():
-    wb.Sweep(wb.Sketch(SQUARE), [[0, 0, 0], [0, 0, 1], [0, 1, 1]])
+    sweep = wb.Sweep(wb.Sketch(SQUARE), [[0, 0, 0], [0, 0, 1], [0, 1, 1]])
+    lo, hi = sweep.bounds()
+    assert np.all(lo <= [0, 0, 0]) and np.all(hi >= [0, 1, 1])
 
 
 def test_valid_edge_cases_are_accepted():
-    wb.Cone((0, 0, 0), (0, 0, 1), 0.0, 0.5, 1.0)  # a pointed cone
-    wb.Box((0, 0, 0), (0.0, 0.0, 0.0), 1.0)  # a box that is a point
-    wb.Inflate(wb.Sketch(SQUARE), thickness=0.0)
-    wb.SmoothBlend(P, Q, k=1.0)
-    wb.Bend(P, (1, 0, 0), (0, 1, 0), -0.3)
-    wb.Taper(wb.Segment((0, 0, -2), (0, 0, 2), 0.5), (0, 0, 1), 0.2)
-    P.scale(-1.0)  # a mirror is invertible
-    wb.Revolve(wb.Sketch([[0.0, 0.0], [1, 0], [1, 1], [0, 1]]))  # touching the axis is fine
+    nodes = [
+        wb.Cone((0, 0, 0), (0, 0, 1), 0.0, 0.5, 1.0),  # a pointed cone
+        wb.Box((0, 0, 0), (0.0, 0.0, 0.0), 1.0),  # a box that is a point
+        wb.Inflate(wb.Sketch(SQUARE), thickness=0.0),
+        wb.SmoothBlend(P, Q, k=1.0),
+        wb.Bend(P, (1, 0, 0), (0, 1, 0), -0.3),
+        wb.Taper(wb.Segment((0, 0, -2), (0, 0, 2), 0.5), (0, 0, 1), 0.2),
+        P.scale(-1.0),  # a mirror is invertible
+        wb.Revolve(wb.Sketch([[0.0, 0.0], [1, 0], [1, 1], [0, 1]])),  # touching the axis is fine
+    ]
+    for node in nodes:
+        lo, hi = node.bounds()
+        assert np.all(np.isfinite(lo)) and np.all(hi > lo), node
 
 
 # ----------------------------------------------------------------------------
