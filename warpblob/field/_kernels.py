@@ -429,8 +429,13 @@ def warp_gradient(m: ModelArrays, node: int, p: wp.vec3, g: wp.vec3):
 
 
 @wp.func
-def combine_kind(kind: int, k: float, reverse: float, acc: vec7, r: vec7, first: bool):
-    """Fold result ``r`` into accumulator ``acc`` (``first``: ``r`` starts it)."""
+def combine_kind(kind: int, p0: float, acc: vec7, r: vec7, first: bool):
+    """Fold result ``r`` into accumulator ``acc`` (``first``: ``r`` starts it).
+
+    ``p0`` is the operator's first parameter: ``k`` of a smooth blend, the
+    "operands stored as (b, a)" flag of a difference."""
+    k = p0
+    reverse = p0
     if kind == K_BLEND or kind == K_SMOOTH:
         w = r[0]
         gw = float(1.0)
@@ -515,8 +520,10 @@ def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float):
 
 
 @wp.func
-def combine_interval(kind: int, k: float, reverse: float, acc: vec7, r: vec7, first: bool):
+def combine_interval(kind: int, p0: float, acc: vec7, r: vec7, first: bool):
     """Interval counterpart of :func:`combine_kind`; every operator is monotone in each operand."""
+    k = p0
+    reverse = p0
     lo = r[0]
     hi = r[1]
     if kind == K_SMOOTH:
@@ -729,9 +736,9 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                         sp += 1
                     acc = vec7()
                     if wp.static(interval):
-                        acc = combine_interval(pk, prm[0], prm[0], get_slot(sv, sg, sc, sp), r, first)
+                        acc = combine_interval(pk, prm[0], get_slot(sv, sg, sc, sp), r, first)
                     else:
-                        acc = combine_kind(pk, prm[0], prm[0], get_slot(sv, sg, sc, sp), r, first)
+                        acc = combine_kind(pk, prm[0], get_slot(sv, sg, sc, sp), r, first)
                     sv[sp] = acc[0]
                     sg[sp] = wp.vec3(acc[1], acc[2], acc[3])
                     sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
