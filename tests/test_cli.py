@@ -160,7 +160,7 @@ def test_tetrahedralize_then_quality(tmp_path):
 @pytest.mark.parametrize(
     "args, words",
     [
-        (("tetrahedralize", "tumor", "--cellsize", "0.1", "--interior-cellsize", "0.3", "--out", "v.usda"), "interior"),
+        (("tetrahedralize", "tumor", "--cellsize", "0.1", "--interior-cellsize", "0.05", "--out", "v.usda"), "interior"),
         (("tetrahedralize", "tumor", "--cellsize", "0.1", "--out", "v.vtk"), "v.vtk"),
         (("quality", "missing.usda"), "missing.usda"),
     ],

@@ -285,7 +285,10 @@ def test_dihedral_bounds_over_cellsizes(name, cellsize):
     model = wb.scenes.ALL[name]()
     q = tetrahedralize(model, cellsize=cellsize).quality()
     assert q.inverted_count == 0
-    assert PAPER_MIN_DIHEDRAL <= q.dihedral_min and q.dihedral_max <= PAPER_MAX_DIHEDRAL, (q.dihedral_min, q.dihedral_max)
+    assert PAPER_MIN_DIHEDRAL <= q.dihedral_min and q.dihedral_max <= PAPER_MAX_DIHEDRAL, (
+        q.dihedral_min,
+        q.dihedral_max,
+    )
 
 
 def _warp_state(monkeypatch, model, cellsize):
@@ -417,11 +420,99 @@ def test_bad_arguments():
             tetrahedralize(model, cellsize=0.1, threads=threads)
     with pytest.raises(wb.WarpblobError, match="interior_cellsize"):
         tetrahedralize(model, cellsize=0.1, interior_cellsize=-1.0)
-    with pytest.raises(NotImplementedError, match="graded interior"):
-        tetrahedralize(model, cellsize=0.1, interior_cellsize=0.4)
+    with pytest.raises(wb.WarpblobError, match="interior_cellsize must be >= cellsize"):
+        tetrahedralize(model, cellsize=0.1, interior_cellsize=0.05)
     with pytest.raises(wb.WarpblobError, match="device"):
         tetrahedralize(model, cellsize=0.1, device="cuda:99")
     with pytest.raises(wb.ResourceError, match="MiB"):
         tetrahedralize(model, cellsize=0.1, max_memory=1000)
     # interior_cellsize equal to cellsize is the uniform lattice
     assert tetrahedralize(model, cellsize=0.1, interior_cellsize=0.1).tet_count > 0
+
+
+# ---------------------------------------------------------------------------
+# graded interior
+
+TRANSITION_MIN_DIHEDRAL = 45.0  # every tet of the graded interior, by enumeration of its 4 shapes
+TRANSITION_MAX_DIHEDRAL = 120.0
+
+
+def _graded_tet_shapes():
+    """The shapes of the graded interior's tets, for a cube of side 2 (centre (1, 1, 1)) at the
+    origin: cones over the face z = 0 split into 4 unit squares (the parity rule puts every
+    diagonal through the face centre: the coarse face's corner has even coordinates in units
+    of the squares), half-pyramids from a unit cube's centre over its face (either diagonal,
+    by symmetry), fans from the face centre to a face edge or to its halves, whole BCC tets
+    to the next cube's centre."""
+    centre = np.array([1.0, 1.0, 1.0])
+    shapes = []
+    for u in range(2):
+        for v in range(2):
+            sq = [(u, v), (u + 1, v), (u + 1, v + 1), (u, v + 1)]
+            q = sq[(u + v) % 2 :] + sq[: (u + v) % 2]
+            for tri in ((q[0], q[1], q[2]), (q[0], q[2], q[3])):
+                shapes.append([centre] + [(x, y, 0.0) for x, y in tri])
+    for tri in (((0, 0), (1, 0), (1, 1)), ((0, 0), (1, 1), (0, 1))):
+        shapes.append([(0.5, 0.5, 0.5)] + [(x, y, 0.0) for x, y in tri])
+    face = np.array([1.0, 1.0, 0.0])
+    shapes += [[centre, face, (0, 0, 0), (1, 0, 0)], [centre, face, (0, 0, 0), (2, 0, 0)]]
+    shapes += [[centre, (1.0, 1.0, -1.0), (0, 0, 0), (2, 0, 0)]]
+    p = np.array(shapes, dtype=float)
+    neg = _volumes(p) < 0
+    p[neg] = p[neg][:, [0, 2, 1, 3]]
+    return p
+
+
+def test_graded_tet_shapes_have_the_stated_dihedral_bounds():
+    d = _dihedrals(_graded_tet_shapes())
+    assert d.min() == pytest.approx(TRANSITION_MIN_DIHEDRAL) and d.max() == pytest.approx(TRANSITION_MAX_DIHEDRAL)
+
+
+def _surface_key(mesh):
+    """The boundary triangles as sorted rows of their sorted vertex coordinates."""
+    tri = mesh.nodes[mesh.surface_faces()].astype(np.float64)  # (F, 3, 3)
+    order = np.lexsort(tri.transpose(2, 0, 1)[::-1])  # sort each triangle's vertices
+    tri = np.take_along_axis(tri, order[..., None], axis=1).reshape(-1, 9)
+    return tri[np.lexsort(tri.T[::-1])]
+
+
+@pytest.mark.parametrize("name,cellsize", [("point", 1.0 / 30.0), ("tumor", 0.05), ("point", 1.0 / 60.0)])
+def test_graded_interior(name, cellsize):
+    model = wb.Point((0.0, 0.0, 0.0), 1.0) if name == "point" else wb.scenes.ALL[name]()
+    uniform = tetrahedralize(model, cellsize=cellsize)
+    graded = tetrahedralize(model, cellsize=cellsize, interior_cellsize=4 * cellsize)
+    st = graded.stats
+    assert st["interior_cellsize"] == pytest.approx(4 * cellsize) and st["coarse_levels"] == 2
+    assert st["coarse_tets"] > 0 and st["transition_tets"] > 0
+    assert st["tets"] == st["stencil_tets"] + st["transition_tets"] + st["coarse_tets"] == graded.tet_count
+    assert graded.tet_count < 0.8 * uniform.tet_count
+    # conforming, positive, closed; boundary nodes on the surface; the enclosed volume exact
+    q = _check_mesh(model, graded)
+    qu = uniform.quality()
+    assert q.dihedral_min >= min(qu.dihedral_min, TRANSITION_MIN_DIHEDRAL) - 1e-6
+    assert q.dihedral_max <= max(qu.dihedral_max, TRANSITION_MAX_DIHEDRAL) + 1e-6
+    # the graded interior's own tets (after the stencil tets) stay within the enumerated bounds
+    p = graded.nodes[graded.tets[st["stencil_tets"] :]].astype(np.float64)
+    d = _dihedrals(p)
+    assert d.min() >= TRANSITION_MIN_DIHEDRAL - 1e-3 and d.max() <= TRANSITION_MAX_DIHEDRAL + 1e-3
+    # the boundary is the uniform mesh's, triangle for triangle, and so is the volume
+    assert np.array_equal(_surface_key(graded), _surface_key(uniform))
+    assert graded.volume() == pytest.approx(uniform.volume(), rel=1e-6)
+    if name == "point":
+        assert 0.99 * 4.0 / 3.0 * math.pi * SPHERE_RADIUS**3 < graded.volume()
+
+
+def test_graded_levels_and_rounding():
+    model = wb.Point((0.0, 0.0, 0.0), 1.0)
+    h = 1.0 / 60.0
+    meshes = {k: tetrahedralize(model, cellsize=h, interior_cellsize=k * h) for k in (1, 1.9, 2, 3.9, 8)}
+    levels = {k: m.stats["coarse_levels"] for k, m in meshes.items()}
+    assert levels == {1: 0, 1.9: 0, 2: 1, 3.9: 1, 8: 3}  # rounded down to a power of two
+    assert meshes[1].tet_count == meshes[1.9].tet_count and meshes[1.9].stats["coarse_tets"] == 0
+    assert meshes[2].tet_count == meshes[3.9].tet_count
+    counts = [meshes[k].tet_count for k in (1, 2, 8)]
+    assert counts == sorted(counts, reverse=True) and counts[-1] < counts[0] / 2
+    _check_mesh(model, meshes[8])
+    # the thread split does not change the graded mesh
+    again = tetrahedralize(model, cellsize=h, interior_cellsize=8 * h, threads=1)
+    assert np.array_equal(again.tets, meshes[8].tets) and np.array_equal(again.nodes, meshes[8].nodes)

@@ -458,6 +458,22 @@ def warp_points_kernel(
 
 
 @wp.func
+def coarse_at(coarse: wp.array(dtype=wp.int32), dims: wp.vec3i, g: wp.vec3i):
+    """1 when coarse cube ``g`` is in the coarse region (0 outside the coarse grid)."""
+    if g[0] < 0 or g[1] < 0 or g[2] < 0 or g[0] >= dims[0] or g[1] >= dims[1] or g[2] >= dims[2]:
+        return 0
+    return coarse[(g[2] * dims[1] + g[1]) * dims[0] + g[0]]
+
+
+@wp.func
+def cell_is_coarse(coarse: wp.array(dtype=wp.int32), dims: wp.vec3i, ratio: int, c: wp.vec3i):
+    """1 when fine cube ``c`` lies in a coarse cube (never when ``ratio`` is 0: uniform lattice)."""
+    if ratio <= 0 or c[0] < 0 or c[1] < 0 or c[2] < 0:
+        return 0
+    return coarse_at(coarse, dims, wp.vec3i(c[0] // ratio, c[1] // ratio, c[2] // ratio))
+
+
+@wp.func
 def tet_vertex(l: Lattice, cell: wp.vec3i, v: wp.vec4i):
     """Point index of a tet vertex ``(red, dx, dy, dz)`` relative to its owning cube (-1 outside)."""
     return point_index(l, v[0], cell + wp.vec3i(v[1], v[2], v[3]))
@@ -482,17 +498,31 @@ def count_tets_kernel(
     vertex_table: wp.array2d(dtype=wp.vec4i),
     stencil_counts: wp.array2d(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
+    coarse: wp.array(dtype=wp.int32),
+    coarse_dims: wp.vec3i,
+    ratio: int,
     offset: int,
     patterns: wp.array(dtype=wp.int32),
     counts: wp.array(dtype=wp.int32),
 ):
-    """Sign pattern (3^4) of each lattice tet of the active sub-blocks and its stencil's size."""
+    """Sign pattern (3^4) of each lattice tet of the active sub-blocks and its stencil's size.
+
+    With a graded interior (``ratio > 0``) a lattice tet whose cube or whose neighbour across
+    the straddled face lies in a coarse cube is left out (see :mod:`._graded`)."""
     tid = wp.tid() + offset
     t = tet_cell(l, active, tid)
     cell = wp.vec3i(t[0], t[1], t[2])
     pattern = int(0)
     scale = int(1)
     inside = bool(True)
+    if ratio > 0:
+        across = wp.vec3i(cell[0], cell[1], cell[2])
+        axis = t[3] // 4
+        across[axis] = across[axis] + 1
+        if cell_is_coarse(coarse, coarse_dims, ratio, cell) == 1:
+            inside = False
+        if cell_is_coarse(coarse, coarse_dims, ratio, across) == 1:
+            inside = False
     for v in range(4):
         p = tet_vertex(l, cell, vertex_table[t[3], v])
         if p < 0:

@@ -14,7 +14,7 @@ from .._stages import available_memory, check_memory, compact, scan
 from ..field._engine import model_arrays, resolve_device
 from ..mesh._tetmesh import TetMesh
 from ..tree import ISO_VALUE
-from . import _kernels, _tables
+from . import _graded, _kernels, _tables
 
 __all__ = ["ALPHA_LONG", "ALPHA_SHORT", "tetrahedralize"]
 
@@ -88,8 +88,11 @@ def tetrahedralize(
         model: a model (:class:`~warpblob.Node`) or its :class:`~warpblob.LinearModel`.
         cellsize: side of the body-centred cubic lattice's cubes (its long
             edge length), model units, > 0.
-        interior_cellsize: coarser tets inside (the paper's graded variant):
-            not implemented; ``None`` or ``cellsize`` give the uniform lattice.
+        interior_cellsize: largest cube side of the graded interior, rounded
+            down to ``2^n cellsize``; coarse cubes of side ``2 cellsize`` ..
+            ``2^n cellsize`` fill the inside away from the surface (see
+            :mod:`warpblob.tetrahedralize`). ``None`` or less than ``2 cellsize``
+            give the uniform lattice; must be ``>= cellsize``.
         device: Warp device (default: Warp's default device).
         alpha_long: warping threshold on long (axis-parallel) edges, as a
             fraction of the edge; in (0, 0.5).
@@ -109,12 +112,14 @@ def tetrahedralize(
         proven outside), ``sub_blocks_inside`` (proven inside: tets without
         field evaluation), ``sub_blocks_outside``,
         ``cut_points``, ``warped_points``, ``tets``, ``nodes``, ``seconds``
-        per stage and ``total_seconds``.
+        per stage and ``total_seconds``; ``interior_cellsize`` (the rounded
+        value, ``cellsize`` when uniform), ``coarse_levels`` (0 when
+        uniform), ``stencil_tets``, ``transition_tets`` (fine half-pyramids)
+        and ``coarse_tets``: the tets come in that order.
 
     Raises:
-        WarpblobError: bad arguments. NotImplementedError: a graded interior
-            (``interior_cellsize`` other than ``cellsize``). ResourceError:
-            the estimated memory exceeds ``max_memory``.
+        WarpblobError: bad arguments (``interior_cellsize < cellsize``
+            included). ResourceError: the estimated memory exceeds ``max_memory``.
 
     Example:
         >>> import warpblob as wb
@@ -124,11 +129,17 @@ def tetrahedralize(
         (True, True)
     """
     h = _positive("cellsize", cellsize)
-    if interior_cellsize is not None and _positive("interior_cellsize", interior_cellsize) != h:
-        raise NotImplementedError(
-            "tetrahedralize: a graded interior (interior_cellsize different from cellsize, "
-            f"{interior_cellsize!r} != {cellsize!r}) is not implemented; pass interior_cellsize=None"
-        )
+    ratio = 0  # fine cubes per coarse cube side; 0: uniform lattice
+    if interior_cellsize is not None:
+        hi_cell = _positive("interior_cellsize", interior_cellsize)
+        if hi_cell < h * (1.0 - 1e-9):
+            raise WarpblobError(
+                f"tetrahedralize: interior_cellsize must be >= cellsize, got {interior_cellsize!r} < {cellsize!r}"
+            )
+        # rounded down to a power of two times cellsize (levels of 2, 4, ... cellsize, see the module docs)
+        ratio = 2 ** int(np.floor(np.log2(hi_cell / h) + 1e-9))
+        if ratio < 2:
+            ratio = 0
     a_long = _alpha("alpha_long", alpha_long)
     a_short = _alpha("alpha_short", alpha_short)
     if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
@@ -138,7 +149,12 @@ def tetrahedralize(
     limit = available_memory(dev) if max_memory is None else int(max_memory)
     iso = float(ISO_VALUE)
     seconds: dict = {}
-    stats: dict = {"cellsize": h, "alpha_long": a_long, "alpha_short": a_short}
+    stats: dict = {
+        "cellsize": h,
+        "interior_cellsize": h * ratio if ratio else h,
+        "alpha_long": a_long,
+        "alpha_short": a_short,
+    }
     t0 = time.perf_counter()
 
     def lap(name):
@@ -244,6 +260,34 @@ def tetrahedralize(
     )
     lap("warp")
 
+    # 4b. graded interior: level-1 cubes (2 fine cubes a side) whose lattice points, one fine
+    # cube around included, are all +; level L >= 2 where a level-(L-1) cube and all its
+    # neighbours qualify (2:1 balance). Per-level bookkeeping (a few sizes) in numpy.
+    level_dims: list = []
+    if ratio:
+        d = cells // 2
+        while len(level_dims) < int(np.log2(ratio)) and np.all(d >= 1):
+            level_dims.append(d.copy())
+            d = d // 2
+    n_levels = len(level_dims)
+    level_sizes = [int(np.prod(d)) for d in level_dims]
+    level_offs = np.concatenate([[0], np.cumsum(level_sizes)]).astype(np.int32) if n_levels else np.zeros(1, np.int32)
+    flat = wp.zeros(max(int(level_offs[-1]), 1), dtype=wp.int32, device=dev)
+    offs_arr = wp.array(level_offs[: max(n_levels, 1)], dtype=wp.int32, device=dev)
+    dims_arr = wp.array(np.array(level_dims or [np.ones(3)], dtype=np.int32), dtype=wp.vec3i, device=dev)
+    level1_dims = wp.vec3i(*(level_dims[0] if n_levels else np.ones(3)).astype(np.int32))
+    for lv in range(1, n_levels + 1):
+        part = wp.empty(level_sizes[lv - 1], dtype=wp.int32, device=dev)
+        if lv == 1:
+            launch(_graded.classify_coarse_kernel, level_sizes[0], [lat, labels, 2, level1_dims], [part], dev, threads)
+        else:
+            launch(_graded.classify_level_kernel, level_sizes[lv - 1], [flat, offs_arr, dims_arr, n_levels, lv],
+                   [part], dev, threads)  # fmt: skip
+        wp.copy(flat, part, dest_offset=int(level_offs[lv - 1]), count=level_sizes[lv - 1])
+    fine_ratio = 2 if n_levels else 0  # level-1 cubes, as seen from the fine cubes
+    if n_levels:
+        lap("coarse")
+
     # 5. stencils: count, scan, emit
     n_threads = n_active * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL
     check_memory(_WHO, "stencil", n_threads * 12, limit)
@@ -252,12 +296,30 @@ def tetrahedralize(
     launch(
         _kernels.count_tets_kernel,
         n_threads,
-        [lat, labels, tables["vertices"], tables["counts"], active],
+        [lat, labels, tables["vertices"], tables["counts"], active, flat, level1_dims, fine_ratio],
         [patterns, tet_counts],
         dev,
         threads,
     )
-    tet_offsets, n_raw = scan(tet_counts)
+    tet_offsets, n_stencil = scan(tet_counts)
+    n_transition = n_coarse_tets = 0
+    coarse_parts = []
+    if n_levels:
+        # half-pyramids on fine faces against a level-1 cube; per level, the leaf cubes' tets
+        n_faces = n_active * _kernels.SUB_CELLS * 6
+        check_memory(_WHO, "transition", (n_faces + 6 * sum(level_sizes)) * 8, limit)
+        trans_counts = wp.empty(n_faces, dtype=wp.int32, device=dev)
+        launch(_graded.count_transition_kernel, n_faces, [lat, active, flat, level1_dims, 2], [trans_counts],
+               dev, threads)  # fmt: skip
+        trans_offsets, n_transition = scan(trans_counts)
+        for lv in range(1, n_levels + 1):
+            level_counts = wp.empty(6 * level_sizes[lv - 1], dtype=wp.int32, device=dev)
+            launch(_graded.count_coarse_kernel, 6 * level_sizes[lv - 1], [flat, offs_arr, dims_arr, n_levels, lv],
+                   [level_counts], dev, threads)  # fmt: skip
+            level_offsets, n_level = scan(level_counts)
+            coarse_parts.append((lv, level_counts, level_offsets, n_level))
+            n_coarse_tets += n_level
+    n_raw = n_stencil + n_transition + n_coarse_tets
     check_memory(_WHO, "tet", n_raw * 32 + (n_points + n_cuts) * 8, limit)
     raw = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
     launch(
@@ -269,6 +331,20 @@ def tetrahedralize(
         dev,
         threads,
     )  # fmt: skip
+    if n_transition:
+        part = wp.empty(n_transition, dtype=wp.vec4i, device=dev)
+        launch(_graded.emit_transition_kernel, n_faces, [lat, active, trans_counts, trans_offsets], [part], dev,
+               threads)  # fmt: skip
+        wp.copy(raw, part, dest_offset=n_stencil, count=n_transition)
+    at = n_stencil + n_transition
+    for lv, level_counts, level_offsets, n_level in coarse_parts:
+        if n_level:
+            part = wp.empty(n_level, dtype=wp.vec4i, device=dev)
+            launch(_graded.emit_coarse_kernel, level_counts.shape[0],
+                   [lat, flat, offs_arr, dims_arr, n_levels, lv, level_counts, level_offsets], [part], dev,
+                   threads)  # fmt: skip
+            wp.copy(raw, part, dest_offset=at, count=n_level)
+            at += n_level
     lap("stencil")
 
     # 6. nodes: keep the points and cut points that a tet uses, renumbered by a scan
@@ -303,6 +379,10 @@ def tetrahedralize(
         field_evaluations=lattice_evaluations + root_evaluations,
         interval_evaluations=n_blocks + int(bounded.numpy().sum()),
         cut_points=n_cuts,
+        coarse_levels=n_levels,
+        stencil_tets=n_stencil,
+        transition_tets=n_transition,
+        coarse_tets=n_coarse_tets,
         warped_points=int(np.count_nonzero(targets.numpy() >= 0)),
         warp_rounds=rounds,
         tets=n_raw,
