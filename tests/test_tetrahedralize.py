@@ -516,3 +516,21 @@ def test_graded_levels_and_rounding():
     # the thread split does not change the graded mesh
     again = tetrahedralize(model, cellsize=h, interior_cellsize=8 * h, threads=1)
     assert np.array_equal(again.tets, meshes[8].tets) and np.array_equal(again.nodes, meshes[8].nodes)
+
+
+def test_material_ids_follow_the_tissue_colours():
+    red, blue = (0.9, 0.1, 0.1), (0.1, 0.1, 0.9)
+    core = wb.Point((0, 0, 0), 1.0, color=red)
+    shell = wb.Point((0, 0, 0), 2.2, color=blue) - wb.Point((0, 0, 0), 1.9, color=blue)
+    model = core | shell
+    mesh = wb.tetrahedralize(model, cellsize=0.08)
+    palette = np.array(mesh.stats["materials"])
+    assert len(palette) == 2
+    centroid_radius = np.linalg.norm(mesh.nodes[mesh.tets].mean(axis=1), axis=1)
+    inner = centroid_radius < 0.3
+    outer = centroid_radius > 0.8
+    assert inner.any() and outer.any()
+    red_id = int(np.argmin(np.abs(palette - red).sum(axis=1)))
+    blue_id = 1 - red_id
+    assert np.all(mesh.material[inner] == red_id)
+    assert np.all(mesh.material[outer] == blue_id)

@@ -104,7 +104,9 @@ def tetrahedralize(
 
     Returns:
         :class:`~warpblob.mesh.TetMesh` with positively oriented tets,
-        ``material`` 0 for every tet, and ``stats``: ``cellsize``,
+        ``material`` (the tissue of each tet: the primitive colour nearest the
+        model's colour at its centroid, an index into ``stats["materials"]``,
+        see :func:`material_ids`), and ``stats``: ``cellsize``,
         ``lattice_points``, ``field_evaluations`` (lattice samples plus
         root-search steps, counted in the kernels), ``lattice_evaluations``,
         ``root_evaluations``, ``interval_evaluations`` (block bounds),
@@ -390,9 +392,33 @@ def tetrahedralize(
         seconds=seconds,
         total_seconds=sum(seconds.values()),
     )
-    return TetMesh(
-        nodes.numpy().reshape(-1, 3),
-        tets.numpy().reshape(-1, 4),
-        np.zeros(n_raw, dtype=np.int32),
-        stats,
-    )
+    node_array = nodes.numpy().reshape(-1, 3)
+    tet_array = tets.numpy().reshape(-1, 4)
+    material, palette = material_ids(lm, node_array[tet_array].mean(axis=1), device=dev, threads=threads)
+    stats["materials"] = palette.tolist()
+    return TetMesh(node_array, tet_array, material, stats)
+
+
+def material_ids(model, points, *, device=None, threads=None):
+    """A material id per point: the index of the primitive colour nearest the
+    model's colour there (tissues are told apart by colour, as in the head's
+    skull / CSF / grey / white matter layers).
+
+    Args:
+        model: a model or its LinearModel.
+        points: (N, 3) positions, model units (tet centroids).
+
+    Returns:
+        ``(ids (N,) int32, palette (M, 3) float32)``: the distinct primitive
+        colours, sorted, and for each point the row of the nearest one.
+    """
+    from ..field import color
+
+    lm = linearize(model)
+    palette = np.unique(lm.color.reshape(-1, 3), axis=0)
+    if len(points) == 0 or len(palette) == 0:
+        return np.zeros(len(points), dtype=np.int32), palette
+    rgb = color(lm, np.asarray(points, dtype=np.float32), device=device, threads=threads)
+    # nearest palette colour (the palette is small: a few tissues)
+    ids = np.argmin(((rgb[:, None, :] - palette[None, :, :]) ** 2).sum(axis=2), axis=1)
+    return ids.astype(np.int32), palette
