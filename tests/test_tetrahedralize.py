@@ -162,7 +162,8 @@ def _check_mesh(model, mesh, *, volume_tolerance=1e-6):
     assert np.abs(f - 0.5).max() <= 1e-4, "a boundary node is off the iso-surface"
     # the tets fill exactly the solid their boundary encloses: no overlaps, no gaps
     assert mesh.volume() == pytest.approx(surface.volume(), rel=volume_tolerance)
-    assert mesh.material is not None and np.all(mesh.material == 0)
+    palette = mesh.stats["materials"]
+    assert mesh.material is not None and 0 <= mesh.material.min() and mesh.material.max() < len(palette)
     return q
 
 
