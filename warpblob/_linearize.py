@@ -265,8 +265,8 @@ def _build_grid(op_box, child_boxes, child_index):
     lo, hi = op_box
     extent = np.maximum(hi - lo, 1e-9)
     sizes = child_boxes[:, 1] - child_boxes[:, 0]
-    # cells of half the typical operand size, per axis: a point then sees few
-    # more operands than those whose boxes really hold it, at ~3.4x the items
+    # cells of a quarter of the typical operand size, per axis: a point then
+    # visits about twice the operands whose boxes really hold it, for ~8x the items
     cell = np.maximum(_GRID_CELL_FRACTION * np.median(sizes, axis=0), 1e-9)
     dims = np.clip(np.ceil(extent / cell), 1, 256).astype(np.int64)
     while np.prod(dims) > _GRID_MAX_CELLS or _grid_items(child_boxes, lo, dims / extent, dims) > _GRID_MAX_ITEMS:
