@@ -226,7 +226,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: Warp's default)")
     sub = p.add_subparsers(dest="command", required=True)
 
-    d = sub.add_parser("demo", help="evaluate the reference models and write field-slice pictures and a summary")
+    d = sub.add_parser("demo", help="polygonize the reference models into one USD stage, with pictures and a summary")
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--scene", default="all", help="one built-in scene, or all (default)")
     d.add_argument("--resolution", type=int, default=256, help="pixels per slice side (default 256)")
