@@ -527,13 +527,13 @@ class Alien(wb.Node):
 
 
 def test_failed_save_writes_nothing(tmp_path):
-    with pytest.raises(TypeError, match="Alien"):
+    with pytest.raises(wb.ModelError, match="Alien"):
         wbusd.save_model(wb.Union(wb.scenes.peanut(), Alien()), tmp_path / "x.usda")
-    with pytest.raises(TypeError):
+    with pytest.raises(wb.ModelError, match="not a model"):
         wbusd.save_model("not a model", tmp_path / "x.usda")
-    with pytest.raises(ValueError, match="suffix|end in"):
+    with pytest.raises(wb.SceneError, match="suffix|end in"):
         wbusd.save_model(wb.scenes.peanut(), tmp_path / "x.obj")
-    with pytest.raises(ValueError, match="prim_path"):
+    with pytest.raises(wb.SceneError, match="prim_path"):
         wbusd.save_model(wb.scenes.peanut(), tmp_path / "x.usda", prim_path="/A/B")
     with pytest.raises(FileNotFoundError):
         wbusd.save_model(wb.scenes.peanut(), tmp_path / "missing" / "x.usda")

@@ -12,7 +12,7 @@ class ModelError(WarpblobError, ValueError):
 
 
 class SceneError(WarpblobError, ValueError):
-    """A scene file could not be read as a BlobTree model."""
+    """A scene file could not be read (or written: a bad path or prim path)."""
 
 
 class ResourceError(WarpblobError, MemoryError):

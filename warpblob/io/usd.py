@@ -224,8 +224,8 @@ def save_model(
         ``path`` as a :class:`pathlib.Path`.
 
     Raises:
-        TypeError: ``model`` is not a tree of warpblob nodes.
-        ValueError: bad ``path`` suffix, ``prim_path`` or ``meters_per_unit``.
+        ModelError: ``model`` is not a tree of warpblob nodes.
+        SceneError: bad ``path`` suffix, ``prim_path`` or ``meters_per_unit``.
         OSError: the file could not be written.
 
     Example:
@@ -237,14 +237,14 @@ def save_model(
     """
     target = pathlib.Path(path)
     if target.suffix not in _SUFFIXES:
-        raise ValueError(f"save_model: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
+        raise SceneError(f"save_model: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
     root = Sdf.Path(str(prim_path)) if Sdf.Path.IsValidPathString(str(prim_path)) else Sdf.Path()
     if not (root.IsRootPrimPath() and root.IsAbsolutePath()):
-        raise ValueError(f"save_model: prim_path must be a root prim path like '/Model', got {prim_path!r}")
+        raise SceneError(f"save_model: prim_path must be a root prim path like '/Model', got {prim_path!r}")
     if not (isinstance(meters_per_unit, (int, float)) and np.isfinite(meters_per_unit) and meters_per_unit > 0):
-        raise ValueError(f"save_model: meters_per_unit must be a positive number, got {meters_per_unit!r}")
+        raise SceneError(f"save_model: meters_per_unit must be a positive number, got {meters_per_unit!r}")
     if not isinstance(model, Node):
-        raise TypeError(f"save_model: model must be a warpblob Node, got {model!r}")
+        raise ModelError(f"save_model: model must be a warpblob Node, got {model!r}")
     layer = _author_layer(model, root, float(meters_per_unit), doc)
     return export_atomically(layer, target, "save_model")
 
@@ -326,10 +326,10 @@ def save_mesh(mesh, path, *, prim_path: str = "/Surface", meters_per_unit: float
     """
     target = pathlib.Path(path)
     if target.suffix not in _SUFFIXES:
-        raise ValueError(f"save_mesh: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
+        raise SceneError(f"save_mesh: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
     name = str(prim_path).strip("/")
     if not name or "/" in name or not Sdf.Path.IsValidIdentifier(name):
-        raise ValueError(f"save_mesh: prim_path must be a root prim path like '/Surface', got {prim_path!r}")
+        raise SceneError(f"save_mesh: prim_path must be a root prim path like '/Surface', got {prim_path!r}")
     stage = new_stage(meters_per_unit=meters_per_unit)
     author_mesh(stage, "/" + name, mesh)
     stage.SetDefaultPrim(stage.GetPrimAtPath("/" + name))
@@ -372,7 +372,7 @@ def _unwrap(node):
 def _spec_of(node) -> tuple[str, _Kind]:
     name = _KIND_OF_CLASS.get(type(node))
     if name is None:
-        raise TypeError(f"save_model: no USD form for node type {type(node).__name__} ({node!r})")
+        raise ModelError(f"save_model: no USD form for node type {type(node).__name__} ({node!r})")
     return name, _KINDS[name]
 
 
