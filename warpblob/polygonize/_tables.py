@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["EDGE_CORNERS", "EDGE_AXIS", "EDGE_ORIGIN", "FACES", "build_loop_table", "loop_triangles", "loop_centres", "MAX_LOOPS", "ENTRY", "APEX"]
+__all__ = ["EDGE_CORNERS", "EDGE_AXIS", "EDGE_ORIGIN", "FACES", "build_loop_table", "MAX_LOOPS", "ENTRY", "APEX"]
 
 CORNERS = np.array([[c & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)])
 
@@ -180,12 +180,3 @@ def _apex_mask(loop) -> int:
             mask |= 1 << s
     return mask
 
-
-def loop_triangles(row) -> int:
-    """Triangles of one table row: n - 2 per fanned loop, n per loop with a centre vertex."""
-    return int(sum(row[2 + lp] - 2 if row[APEX + lp] else row[2 + lp] for lp in range(row[1])))
-
-
-def loop_centres(row) -> int:
-    """Centre vertices of one table row."""
-    return int(sum(1 for lp in range(row[1]) if row[APEX + lp] == 0))
