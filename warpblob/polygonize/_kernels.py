@@ -106,6 +106,35 @@ def sample_at(
 
 
 @wp.func
+def proven_side(r: vec7, iso: float):
+    """0 when the bounds (F_min, F_max) in ``r`` straddle ``iso``, 1 when all
+    inside (``F >= iso``), 2 when all outside."""
+    if r[0] >= iso:
+        return 1
+    if r[1] < iso:
+        return 2
+    return 0
+
+
+@wp.func
+def store_vertex(
+    out: int,
+    x: wp.vec3,
+    r: vec7,
+    count: int,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    colors: wp.array(dtype=wp.vec3),
+    evaluations: wp.array(dtype=wp.int32),
+):
+    """Write vertex ``out`` at ``x`` with the normal (-grad F, unit) and colour of evaluation ``r``."""
+    positions[out] = x
+    normals[out] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
+    colors[out] = wp.vec3(r[4], r[5], r[6])
+    evaluations[out] = count
+
+
+@wp.func
 def inside(v: float, iso: float):
     return v >= iso
 
@@ -129,11 +158,7 @@ def make_kernels():
         half = 0.5 * float(_BLOCK) * g.h
         center = g.origin + g.h * float(_BLOCK) * wp.vec3(float(c[0]), float(c[1]), float(c[2])) + wp.vec3(half)
         r = bound(m, center, half * 1.7320509 * 1.0001)
-        state = int(0)
-        if r[0] >= iso:
-            state = 1
-        elif r[1] < iso:
-            state = 2
+        state = proven_side(r, iso)
         flags[b] = wp.where(state == 0, 1, 0)
         block_states[b] = state
 
@@ -160,11 +185,7 @@ def make_kernels():
             float(c[2] * _BLOCK + _SUB * sk) + half,
         )
         r = bound(m, g.origin + g.h * corner, half * g.h * 1.7320509 * 1.0001)
-        state = int(0)
-        if r[0] >= iso:
-            state = 1
-        elif r[1] < iso:
-            state = 2
+        state = proven_side(r, iso)
         states[tid] = state
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -336,11 +357,7 @@ def make_kernels():
                 else:
                     f1 = sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states) - iso
                 r, t, count = segment_root(m, p0, step, f0, f1, iso, tolerance, max_iterations)
-                grad = wp.vec3(r[1], r[2], r[3])
-                positions[out] = p0 + t * step
-                normals[out] = -wp.normalize(grad)
-                colors[out] = wp.vec3(r[4], r[5], r[6])
-                evaluations[out] = count
+                store_vertex(out, p0 + t * step, r, count, positions, normals, colors, evaluations)
                 out += 1
 
     @wp.func
@@ -463,10 +480,7 @@ def make_kernels():
                     if length > 0.5 * g.h:
                         step = step * (0.5 * g.h / length)
                     x = x + step
-                positions[out] = x
-                normals[out] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
-                colors[out] = wp.vec3(r[4], r[5], r[6])
-                evaluations[out] = count
+                store_vertex(out, x, r, count, positions, normals, colors, evaluations)
                 out += 1
             first += n
 

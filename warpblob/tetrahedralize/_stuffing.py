@@ -396,6 +396,7 @@ def tetrahedralize(
     tet_array = tets.numpy().reshape(-1, 4)
     material, palette = material_ids(lm, node_array[tet_array].mean(axis=1), device=dev, threads=threads)
     stats["materials"] = palette.tolist()
+    stats["material_evaluations"] = len(tet_array)  # one colour evaluation per tet centroid
     return TetMesh(node_array, tet_array, material, stats)
 
 
@@ -419,6 +420,11 @@ def material_ids(model, points, *, device=None, threads=None):
     if len(points) == 0 or len(palette) == 0:
         return np.zeros(len(points), dtype=np.int32), palette
     rgb = color(lm, np.asarray(points, dtype=np.float32), device=device, threads=threads)
-    # nearest palette colour (the palette is small: a few tissues)
-    ids = np.argmin(((rgb[:, None, :] - palette[None, :, :]) ** 2).sum(axis=2), axis=1)
-    return ids.astype(np.int32), palette
+    # nearest palette colour, one palette row at a time: (N,) memory, not (N, M, 3)
+    ids = np.zeros(len(rgb), dtype=np.int32)
+    best = np.full(len(rgb), np.inf, dtype=np.float32)
+    for k, c in enumerate(palette):
+        d = ((rgb - c) ** 2).sum(axis=1)
+        closer = d < best
+        ids[closer], best[closer] = k, d[closer]
+    return ids, palette
