@@ -22,7 +22,9 @@ vec_slots = wp.types.vector(length=SLOTS, dtype=wp.float32)
 ivec_slots = wp.types.vector(length=SLOTS, dtype=wp.int32)
 mat_slots3 = wp.types.matrix(shape=(SLOTS, 3), dtype=wp.float32)
 mat_warps3 = wp.types.matrix(shape=(WARP_NESTING, 3), dtype=wp.float32)
-vec7 = wp.types.vector(length=7, dtype=wp.float32)
+# (value, gradient, colour) of one evaluation, padded to 8 floats: a 28-byte vector
+# compiles to overlapping 16-byte moves that defeat store forwarding on x86
+vec7 = wp.types.vector(length=8, dtype=wp.float32)
 
 K_POINT = wp.constant(_kinds.POINT)
 K_SEGMENT = wp.constant(_kinds.SEGMENT)
@@ -337,7 +339,7 @@ def evaluate_primitive(m: ModelArrays, node: int, q: wp.vec3):
     if fg[0] > 0.0:
         g = pull_gradient(inv, (fg[1] / rad) * wp.vec3(dg[1], dg[2], dg[3]))
         c = m.color[r]
-        out = vec7(fg[0], g[0], g[1], g[2], c[0], c[1], c[2])
+        out = vec7(fg[0], g[0], g[1], g[2], c[0], c[1], c[2], 0.0)
     return out
 
 
@@ -347,7 +349,7 @@ def primitive_value(m: ModelArrays, node: int, q: wp.vec3):
     r = m.ref[node]
     x = apply_inverse(m.inverse[r], q)
     d = primitive_distance(m.kind[node], x, m.params[node], m.data, m.data_start[r])[0]
-    return vec7(falloff(d / m.radius[r])[0], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return vec7(falloff(d / m.radius[r])[0], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 # --------------------------------------------------------------------------
@@ -443,7 +445,7 @@ def combine_kind(kind: int, p0: float, acc: vec7, r: vec7, first: bool):
             # accumulate S = sum F^k and sum F^(k-1) grad F; then grad (S^(1/k)) = S^(1/k - 1) sum F^(k-1) grad F
             w = wp.pow(r[0], k)
             gw = wp.pow(r[0], k - 1.0)
-        lifted = vec7(w, gw * r[1], gw * r[2], gw * r[3], w * r[4], w * r[5], w * r[6])
+        lifted = vec7(w, gw * r[1], gw * r[2], gw * r[3], w * r[4], w * r[5], w * r[6], 0.0)
         if first:
             return lifted
         return acc + lifted
@@ -468,10 +470,10 @@ def combine_kind(kind: int, p0: float, acc: vec7, r: vec7, first: bool):
         return a
     if b[0] <= 0.0:
         # F_a > 1 clamped by the empty b: constant 1, still a's colour
-        return vec7(t, 0.0, 0.0, 0.0, a[4], a[5], a[6])
+        return vec7(t, 0.0, 0.0, 0.0, a[4], a[5], a[6], 0.0)
     if b[0] >= 1.0:
-        return vec7(t, 0.0, 0.0, 0.0, b[4], b[5], b[6])
-    return vec7(t, -b[1], -b[2], -b[3], b[4], b[5], b[6])
+        return vec7(t, 0.0, 0.0, 0.0, b[4], b[5], b[6], 0.0)
+    return vec7(t, -b[1], -b[2], -b[3], b[4], b[5], b[6], 0.0)
 
 
 @wp.func
@@ -481,10 +483,10 @@ def finalize_kind(kind: int, k: float, acc: vec7):
         if acc[0] > 0.0:
             # divide (not multiply by 1/S): S = sum F^k can be denormal, 1/S would overflow
             s = acc[0]
-            out = vec7(s, acc[1], acc[2], acc[3], acc[4] / s, acc[5] / s, acc[6] / s)
+            out = vec7(s, acc[1], acc[2], acc[3], acc[4] / s, acc[5] / s, acc[6] / s, 0.0)
             if kind == K_SMOOTH:
                 v = wp.pow(s, 1.0 / k)
-                out = vec7(v, v * acc[1] / s, v * acc[2] / s, v * acc[3] / s, out[4], out[5], out[6])
+                out = vec7(v, v * acc[1] / s, v * acc[2] / s, v * acc[3] / s, out[4], out[5], out[6], 0.0)
     if out[0] <= 0.0:
         out = vec7()
     return out
@@ -510,13 +512,13 @@ def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float):
     kind = m.kind[node]
     if kind >= K_INFLATE:
         # spline-based distances have no global Lipschitz bound: F is in [0, 1]
-        return vec7(0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return vec7(0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     r = m.ref[node]
     x = apply_inverse(m.inverse[r], c)
     d = primitive_distance(kind, x, m.params[node], m.data, m.data_start[r])[0]
     slack = rad * m.stretch[r]
     rr = m.radius[r]
-    return vec7(falloff((d + slack) / rr)[0], falloff(wp.max(d - slack, 0.0) / rr)[0], 0.0, 0.0, 0.0, 0.0, 0.0)
+    return vec7(falloff((d + slack) / rr)[0], falloff(wp.max(d - slack, 0.0) / rr)[0], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @wp.func
@@ -530,27 +532,27 @@ def combine_interval(kind: int, p0: float, acc: vec7, r: vec7, first: bool):
         lo = wp.pow(lo, k)
         hi = wp.pow(hi, k)
     if first:
-        return vec7(lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return vec7(lo, hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if kind == K_BLEND or kind == K_SMOOTH:
-        return vec7(acc[0] + lo, acc[1] + hi, 0.0, 0.0, 0.0, 0.0, 0.0)
+        return vec7(acc[0] + lo, acc[1] + hi, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if kind == K_UNION:
-        return vec7(wp.max(acc[0], lo), wp.max(acc[1], hi), 0.0, 0.0, 0.0, 0.0, 0.0)
+        return vec7(wp.max(acc[0], lo), wp.max(acc[1], hi), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if kind == K_INTERSECTION:
-        return vec7(wp.min(acc[0], lo), wp.min(acc[1], hi), 0.0, 0.0, 0.0, 0.0, 0.0)
+        return vec7(wp.min(acc[0], lo), wp.min(acc[1], hi), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     a = acc
     b = r
     if reverse > 0.5:
         a = r
         b = acc
     return vec7(
-        wp.min(a[0], 1.0 - wp.min(b[1], 1.0)), wp.min(a[1], 1.0 - wp.min(b[0], 1.0)), 0.0, 0.0, 0.0, 0.0, 0.0
+        wp.min(a[0], 1.0 - wp.min(b[1], 1.0)), wp.min(a[1], 1.0 - wp.min(b[0], 1.0)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     )
 
 
 @wp.func
 def finalize_interval(kind: int, k: float, acc: vec7):
     if kind == K_SMOOTH:
-        return vec7(wp.pow(acc[0], 1.0 / k), wp.pow(acc[1], 1.0 / k), 0.0, 0.0, 0.0, 0.0, 0.0)
+        return vec7(wp.pow(acc[0], 1.0 / k), wp.pow(acc[1], 1.0 / k), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     return acc
 
 
@@ -638,15 +640,22 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
             return float(ball_cell_count(m, gi, q, radius)) < m.params[node][1]
         return True
 
+    full = derivatives and not interval
+
     @wp.func
-    def get_slot(sv: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
+    def get_slot(sv: vec_slots, sh: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
+        if wp.static(interval):
+            return vec7(sv[sp], sh[sp], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        if wp.static(not full):
+            return vec7(sv[sp], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         g = sg[sp]
         c = sc[sp]
-        return vec7(sv[sp], g[0], g[1], g[2], c[0], c[1], c[2])
+        return vec7(sv[sp], g[0], g[1], g[2], c[0], c[1], c[2], 0.0)
 
     @wp.func
     def evaluate(m: ModelArrays, p: wp.vec3, radius: float):
         sv = vec_slots()
+        sh = vec_slots()
         sg = mat_slots3()
         sc = mat_slots3()
         cursor = ivec_slots()
@@ -679,7 +688,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                     descending = False
                 elif kind >= K_TWIST:
                     if wp.static(interval):
-                        r = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0)
+                        r = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                         descending = False
                     else:
                         wsp += 1
@@ -705,8 +714,11 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                     if first_op[2] >= 0:
                         sp += 1
                         sv[sp] = 0.0
-                        sg[sp] = wp.vec3(0.0)
-                        sc[sp] = wp.vec3(0.0)
+                        if wp.static(interval):
+                            sh[sp] = 0.0
+                        if wp.static(full):
+                            sg[sp] = wp.vec3(0.0)
+                            sc[sp] = wp.vec3(0.0)
                         stop[sp] = first_op[0]
                         cursor[sp] = first_op[1]
                         i = first_op[2]
@@ -722,7 +734,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                 pk = m.kind[par]
                 if pk >= K_TWIST:
                     g = warp_gradient(m, par, saved[wsp], wp.vec3(r[1], r[2], r[3]))
-                    r = vec7(r[0], g[0], g[1], g[2], r[4], r[5], r[6])
+                    r = vec7(r[0], g[0], g[1], g[2], r[4], r[5], r[6], 0.0)
                     q = saved[wsp]
                     wsp -= 1
                     i = par
@@ -736,12 +748,15 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                         sp += 1
                     acc = vec7()
                     if wp.static(interval):
-                        acc = combine_interval(pk, prm[0], get_slot(sv, sg, sc, sp), r, first)
+                        acc = combine_interval(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
                     else:
-                        acc = combine_kind(pk, prm[0], get_slot(sv, sg, sc, sp), r, first)
+                        acc = combine_kind(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
                     sv[sp] = acc[0]
-                    sg[sp] = wp.vec3(acc[1], acc[2], acc[3])
-                    sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
+                    if wp.static(interval):
+                        sh[sp] = acc[1]
+                    if wp.static(full):
+                        sg[sp] = wp.vec3(acc[1], acc[2], acc[3])
+                        sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
                     nxt = int(-1)
                     if wide:
                         if wp.static(interval):
