@@ -616,7 +616,174 @@ def ball_cell_count(m: ModelArrays, gi: int, q: wp.vec3, radius: float):
     return (c1[0] - c0[0] + 1) * (c1[1] - c0[1] + 1) * (c1[2] - c0[2] + 1)
 
 
-def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True):
+
+# --------------------------------------------------------------------------
+# array mode: one traversal evaluates a whole block of grid points
+
+
+@wp.struct
+class BlockRows:
+    """Scratch of one array-mode traversal: the F values of a block of
+    ``BLOCK_POINTS`` grid points (8^3, x fastest) held per register slot.
+
+    ``rows[base + s * BLOCK_POINTS + j]`` is slot ``s`` at point ``j``; slot
+    ``result`` holds a primitive's values over its index range only, slot
+    ``result + 1`` is 1.0 where the point is wanted (others are skipped).
+    Point ``(i, j, k)`` is at ``origin + h * (corner + (i, j, k))``, computed
+    as :func:`grid_point` does so that it is bit-identical to the grid's."""
+
+    rows: wp.array(dtype=wp.float32)
+    base: int
+    result: int
+    origin: wp.vec3
+    h: float
+    corner: wp.vec3i
+
+
+BLOCK_SIDE = 8
+BLOCK_POINTS = BLOCK_SIDE * BLOCK_SIDE * BLOCK_SIDE
+_BSIDE = wp.constant(BLOCK_SIDE)
+_BPOINTS = wp.constant(BLOCK_POINTS)
+
+
+@wp.func
+def grid_point(origin: wp.vec3, h: float, gx: int, gy: int, gz: int):
+    """Position of grid vertex (gx, gy, gz): ``origin + h * (gx, gy, gz)``."""
+    return origin + h * wp.vec3(float(gx), float(gy), float(gz))
+
+
+@wp.func
+def block_center(ctx: BlockRows):
+    """(centre, half side) of the cube spanned by the block's points."""
+    lo = grid_point(ctx.origin, ctx.h, ctx.corner[0], ctx.corner[1], ctx.corner[2])
+    hi = grid_point(ctx.origin, ctx.h, ctx.corner[0] + _BSIDE - 1, ctx.corner[1] + _BSIDE - 1, ctx.corner[2] + _BSIDE - 1)
+    half = 0.5 * wp.max(wp.max(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
+    return 0.5 * (lo + hi), half * 1.0001
+
+
+@wp.func
+def index_range(ctx: BlockRows, lo: wp.vec3, hi: wp.vec3):
+    """Local index range (i0, j0, k0, i1, j1, k1, 0, 0) of the block points in
+    the box [lo, hi]. The range reaches 1e-3 cells past the box, far more than
+    float32 rounding of a point's position, so a point inside the box is never
+    left out (those just outside are evaluated for nothing: F = 0 there)."""
+    a = (lo - ctx.origin) / ctx.h
+    b = (hi - ctx.origin) / ctx.h
+    return vec7(
+        float(wp.max(int(wp.ceil(a[0] - 1.0e-3)) - ctx.corner[0], 0)),
+        float(wp.max(int(wp.ceil(a[1] - 1.0e-3)) - ctx.corner[1], 0)),
+        float(wp.max(int(wp.ceil(a[2] - 1.0e-3)) - ctx.corner[2], 0)),
+        float(wp.min(int(wp.floor(b[0] + 1.0e-3)) - ctx.corner[0], _BSIDE - 1)),
+        float(wp.min(int(wp.floor(b[1] + 1.0e-3)) - ctx.corner[1], _BSIDE - 1)),
+        float(wp.min(int(wp.floor(b[2] + 1.0e-3)) - ctx.corner[2], _BSIDE - 1)),
+        0.0,
+        0.0,
+    )
+
+
+@wp.func
+def empty_range(row: int):
+    return vec7(float(_BSIDE), float(_BSIDE), float(_BSIDE), -1.0, -1.0, -1.0, float(row), 0.0)
+
+
+@wp.func
+def in_range(rg: vec7, i: int, j: int, k: int):
+    return (
+        float(i) >= rg[0] and float(i) <= rg[3] and float(j) >= rg[1] and float(j) <= rg[4]
+        and float(k) >= rg[2] and float(k) <= rg[5]
+    )  # fmt: skip
+
+
+@wp.func
+def clear_row(ctx: BlockRows, row: int):
+    start = ctx.base + row * _BPOINTS
+    for j in range(_BPOINTS):
+        ctx.rows[start + j] = 0.0
+
+
+@wp.func
+def fold_rows(kind: int, p0: float, acc: vec7, r: vec7, first: bool, ctx: BlockRows, sp: int):
+    """Array-mode :func:`combine_kind`: fold the values of ``r`` (its index range
+    and row in ``r[0:6]``, ``r[6]``) into slot ``sp`` (range ``acc``); returns
+    the slot's new range. Points outside a range hold F = 0."""
+    dst = ctx.base + sp * _BPOINTS
+    src_row = int(r[6])
+    src = ctx.base + src_row * _BPOINTS
+    k = p0
+    smooth = kind == K_SMOOTH
+    if first:
+        if src_row != sp:
+            clear_row(ctx, sp)
+        for kk in range(int(r[2]), int(r[5]) + 1):
+            for jj in range(int(r[1]), int(r[4]) + 1):
+                for ii in range(int(r[0]), int(r[3]) + 1):
+                    j = (kk * _BSIDE + jj) * _BSIDE + ii
+                    v = ctx.rows[src + j]
+                    if smooth:
+                        v = wp.pow(v, k)
+                    ctx.rows[dst + j] = v
+        return vec7(r[0], r[1], r[2], r[3], r[4], r[5], float(sp), 0.0)
+    if kind == K_BLEND or kind == K_SMOOTH or kind == K_UNION:
+        for kk in range(int(r[2]), int(r[5]) + 1):
+            for jj in range(int(r[1]), int(r[4]) + 1):
+                for ii in range(int(r[0]), int(r[3]) + 1):
+                    j = (kk * _BSIDE + jj) * _BSIDE + ii
+                    v = ctx.rows[src + j]
+                    if kind == K_UNION:
+                        ctx.rows[dst + j] = wp.max(ctx.rows[dst + j], v)
+                    elif smooth:
+                        ctx.rows[dst + j] = ctx.rows[dst + j] + wp.pow(v, k)
+                    else:
+                        ctx.rows[dst + j] = ctx.rows[dst + j] + v
+        return vec7(
+            wp.min(acc[0], r[0]), wp.min(acc[1], r[1]), wp.min(acc[2], r[2]),
+            wp.max(acc[3], r[3]), wp.max(acc[4], r[4]), wp.max(acc[5], r[5]), float(sp), 0.0,
+        )  # fmt: skip
+    # intersection and difference see every point (F = 0 outside a range matters)
+    reverse = p0 > 0.5
+    for j in range(_BPOINTS):
+        ii = j % _BSIDE
+        jj = (j // _BSIDE) % _BSIDE
+        kk = j // (_BSIDE * _BSIDE)
+        v = float(0.0)
+        if in_range(r, ii, jj, kk):
+            v = ctx.rows[src + j]
+        w = ctx.rows[dst + j]
+        if kind == K_INTERSECTION:
+            ctx.rows[dst + j] = wp.min(w, v)
+        else:
+            a = w
+            b = v
+            if reverse:
+                a = v
+                b = w
+            ctx.rows[dst + j] = wp.min(a, 1.0 - wp.min(b, 1.0))
+    if kind == K_INTERSECTION:
+        return vec7(
+            wp.max(acc[0], r[0]), wp.max(acc[1], r[1]), wp.max(acc[2], r[2]),
+            wp.min(acc[3], r[3]), wp.min(acc[4], r[4]), wp.min(acc[5], r[5]), float(sp), 0.0,
+        )  # fmt: skip
+    if reverse:
+        return vec7(r[0], r[1], r[2], r[3], r[4], r[5], float(sp), 0.0)
+    return acc
+
+
+@wp.func
+def finalize_rows(kind: int, k: float, acc: vec7, ctx: BlockRows, sp: int):
+    """Array-mode :func:`finalize_kind`: a smooth blend's root S^(1/k) over its range."""
+    if kind == K_SMOOTH:
+        dst = ctx.base + sp * _BPOINTS
+        for kk in range(int(acc[2]), int(acc[5]) + 1):
+            for jj in range(int(acc[1]), int(acc[4]) + 1):
+                for ii in range(int(acc[0]), int(acc[3]) + 1):
+                    j = (kk * _BSIDE + jj) * _BSIDE + ii
+                    v = ctx.rows[dst + j]
+                    if v > 0.0:
+                        ctx.rows[dst + j] = wp.pow(v, 1.0 / k)
+    return vec7(acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], float(sp), 0.0)
+
+
+def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, _core: bool = False):
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
     Point mode (``interval`` False) returns (F, grad F, colour) at ``p``
@@ -627,6 +794,10 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
     the operands of a wide operator listed in the grid cells the ball overlaps.
     """
     use_grid = prune
+    # array mode walks the tree once per block, pruning like interval mode over
+    # the block's cube; warps inside it are evaluated point by point
+    spatial = interval or array
+    point = make_evaluate(True, derivatives=False, _core=True) if array else None
 
     @wp.func
     def walks_grid(m: ModelArrays, node: int, q: wp.vec3, radius: float):
@@ -636,16 +807,20 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
         gi = m.ref[node]
         if gi < 0:
             return False
-        if wp.static(interval):
+        if wp.static(spatial):
             return float(ball_cell_count(m, gi, q, radius)) < m.params[node][1]
         return True
 
-    full = derivatives and not interval
+    full = derivatives and not interval and not array
 
     @wp.func
     def get_slot(sv: vec_slots, sh: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
         if wp.static(interval):
             return vec7(sv[sp], sh[sp], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        if wp.static(array):
+            lo = sg[sp]
+            hi = sc[sp]
+            return vec7(lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], float(sp), 0.0)
         if wp.static(not full):
             return vec7(sv[sp], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         g = sg[sp]
@@ -653,7 +828,36 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
         return vec7(sv[sp], g[0], g[1], g[2], c[0], c[1], c[2], 0.0)
 
     @wp.func
-    def evaluate(m: ModelArrays, p: wp.vec3, radius: float):
+    def rows_leaf(m: ModelArrays, node: int, ctx: BlockRows):
+        """Array mode: F of primitive or warp ``node`` at the wanted block points
+        in its box, into the result slot; returns (range, result slot)."""
+        rg = index_range(ctx, m.lower[node], m.upper[node])
+        res = ctx.base + ctx.result * _BPOINTS
+        want = res + _BPOINTS
+        kind = m.kind[node]
+        leaf = kind < K_PRIM_END
+        r = m.ref[node]
+        inv = m.inverse[r]
+        prm = m.params[node]
+        start = m.data_start[r]
+        rad = m.radius[r]
+        for kk in range(int(rg[2]), int(rg[5]) + 1):
+            for jj in range(int(rg[1]), int(rg[4]) + 1):
+                for ii in range(int(rg[0]), int(rg[3]) + 1):
+                    j = (kk * _BSIDE + jj) * _BSIDE + ii
+                    if ctx.rows[want + j] != 0.0:
+                        p = grid_point(ctx.origin, ctx.h, ctx.corner[0] + ii, ctx.corner[1] + jj, ctx.corner[2] + kk)
+                        v = float(0.0)
+                        if leaf:
+                            x = apply_inverse(inv, p)
+                            v = falloff(primitive_distance(kind, x, prm, m.data, start)[0] / rad)[0]
+                        elif wp.static(array):
+                            v = point(m, p, 0.0, node, ctx)[0]
+                        ctx.rows[res + j] = v
+        return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
+
+    @wp.func
+    def traverse(m: ModelArrays, p: wp.vec3, radius: float, root: int, ctx: BlockRows):
         sv = vec_slots()
         sh = vec_slots()
         sg = mat_slots3()
@@ -664,23 +868,27 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
         sp = int(-1)
         wsp = int(-1)
         q = p
-        i = int(0)
+        i = root
         r = vec7()
         descending = bool(True)
         while True:
             if descending:
                 kind = m.kind[i]
                 outside = bool(False)
-                if wp.static(interval):
+                if wp.static(spatial):
                     outside = not ball_meets_box(q, radius, m.lower[i], m.upper[i])
                 elif wp.static(prune):
                     outside = not inside_box(q, m.lower[i], m.upper[i])
                 if outside:
                     r = vec7()
+                    if wp.static(array):
+                        r = empty_range(ctx.result)
                     descending = False
                 elif kind < K_PRIM_END:
                     if wp.static(interval):
                         r = interval_primitive(m, i, q, radius)
+                    elif wp.static(array):
+                        r = rows_leaf(m, i, ctx)
                     elif wp.static(derivatives):
                         r = evaluate_primitive(m, i, q)
                     else:
@@ -689,6 +897,9 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                 elif kind >= K_TWIST:
                     if wp.static(interval):
                         r = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                        descending = False
+                    elif wp.static(array):
+                        r = rows_leaf(m, i, ctx)
                         descending = False
                     else:
                         wsp += 1
@@ -700,7 +911,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                     # cell of q (point mode) or the cells the ball overlaps (interval)
                     gi = m.ref[i]
                     first_op = wp.vec3i(0, 0, -1)
-                    if wp.static(interval):
+                    if wp.static(spatial):
                         c0 = grid_cell_of(m, gi, q - wp.vec3(radius))
                         dims = m.grid_dims[gi]
                         first_op = next_ball_operand(m, gi, q, radius, (c0[2] * dims[1] + c0[1]) * dims[0] + c0[0], -1)
@@ -716,6 +927,11 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                         sv[sp] = 0.0
                         if wp.static(interval):
                             sh[sp] = 0.0
+                        if wp.static(array):
+                            clear_row(ctx, sp)
+                            e = empty_range(sp)
+                            sg[sp] = wp.vec3(e[0], e[1], e[2])
+                            sc[sp] = wp.vec3(e[3], e[4], e[5])
                         if wp.static(full):
                             sg[sp] = wp.vec3(0.0)
                             sc[sp] = wp.vec3(0.0)
@@ -724,11 +940,13 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                         i = first_op[2]
                     else:
                         r = vec7()
+                        if wp.static(array):
+                            r = empty_range(ctx.result)
                         descending = False
                 else:
                     i = i + 1
             else:
-                if i == 0:
+                if i == root:
                     break
                 par = m.parent[i]
                 pk = m.kind[par]
@@ -749,17 +967,22 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                     acc = vec7()
                     if wp.static(interval):
                         acc = combine_interval(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
+                    elif wp.static(array):
+                        acc = fold_rows(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
                     else:
                         acc = combine_kind(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
                     sv[sp] = acc[0]
                     if wp.static(interval):
                         sh[sp] = acc[1]
+                    if wp.static(array):
+                        sg[sp] = wp.vec3(acc[0], acc[1], acc[2])
+                        sc[sp] = wp.vec3(acc[3], acc[4], acc[5])
                     if wp.static(full):
                         sg[sp] = wp.vec3(acc[1], acc[2], acc[3])
                         sc[sp] = wp.vec3(acc[4], acc[5], acc[6])
                     nxt = int(-1)
                     if wide:
-                        if wp.static(interval):
+                        if wp.static(spatial):
                             step = next_ball_operand(m, m.ref[par], q, radius, stop[sp], cursor[sp])
                             if step[2] >= 0:
                                 stop[sp] = step[0]
@@ -777,6 +1000,9 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                             if wp.static(interval):
                                 if acc[1] <= 0.0:
                                     nxt = -1
+                            elif wp.static(array):
+                                if acc[3] < acc[0] or acc[4] < acc[1] or acc[5] < acc[2]:
+                                    nxt = -1
                             elif acc[0] <= 0.0:
                                 nxt = -1
                     if nxt >= 0:
@@ -785,21 +1011,61 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True)
                     else:
                         if wp.static(interval):
                             r = finalize_interval(pk, prm[0], acc)
+                        elif wp.static(array):
+                            r = finalize_rows(pk, prm[0], acc, ctx, sp)
                         else:
                             r = finalize_kind(pk, prm[0], acc)
                         sp -= 1
                         i = par
         return r
 
+    if _core:
+        return traverse
+    if array:
+
+        @wp.func
+        def evaluate_block(m: ModelArrays, ctx: BlockRows):
+            c, half = block_center(ctx)
+            return traverse(m, c, half, 0, ctx)
+
+        return evaluate_block
+
+    @wp.func
+    def evaluate(m: ModelArrays, p: wp.vec3, radius: float):
+        return traverse(m, p, radius, 0, BlockRows())
+
     return evaluate
+
+
+@wp.func
+def cubic_guess(fm: float, f0: float, f1: float, f2: float):
+    """Root in (0, 1) of the cubic through (-1, fm), (0, f0), (1, f1), (2, f2)
+    (f0, f1 of opposite signs), by Newton steps from the linear guess; the
+    linear guess when the cubic's root leaves the interval. A starting point
+    for :func:`make_segment_root`'s search from the samples around an edge."""
+    c1 = -fm / 3.0 - 0.5 * f0 + f1 - f2 / 6.0
+    c2 = 0.5 * fm - f0 + 0.5 * f1
+    c3 = (f2 - fm) / 6.0 + 0.5 * (f0 - f1)
+    lin = f0 / (f0 - f1)
+    t = lin
+    for _k in range(4):
+        v = f0 + t * (c1 + t * (c2 + t * c3))
+        d = c1 + t * (2.0 * c2 + 3.0 * t * c3)
+        if d == 0.0:
+            return lin
+        t = t - v / d
+    if t > 0.0 and t < 1.0:
+        return t
+    return lin
 
 
 def make_segment_root(evaluate):
     """A root search on segments, for polygonization and isosurface stuffing.
 
     ``evaluate`` is a point-mode traversal with derivatives (:func:`make_evaluate`).
-    The returned ``segment_root(m, p0, step, f0, f1, iso, tolerance,
-    max_iterations) -> (vec7 r, t, evaluations)`` finds ``t`` in [0, 1] with
+    The returned ``segment_root(m, p0, step, f0, f1, t0, iso, tolerance,
+    max_iterations) -> (vec7 r, t, evaluations)`` starts at ``t0`` (e.g.
+    :func:`cubic_guess`; outside (0, 1): the linear guess) and finds ``t`` in [0, 1] with
     ``|F(p0 + t step) - iso| <= tolerance``, given the values ``f0``, ``f1``
     (minus ``iso``, of opposite sides) at the ends: Newton along the segment
     with the analytic derivative, safeguarded by the bracket (Press et al.'s
@@ -815,6 +1081,7 @@ def make_segment_root(evaluate):
         step: wp.vec3,
         f0: float,
         f1: float,
+        t0: float,
         iso: float,
         tolerance: float,
         max_iterations: int,
@@ -823,6 +1090,8 @@ def make_segment_root(evaluate):
         tb = float(1.0)
         fa = f0
         t = fa / (fa - f1)
+        if t0 > 0.0 and t0 < 1.0:
+            t = t0
         dx_old = float(1.0)
         best = vec7()
         best_t = t
@@ -898,3 +1167,53 @@ def make_interval_kernel():
         bounds[tid] = wp.vec2(r[0], r[1])
 
     return bound_balls_kernel
+
+
+def make_grid_kernel():
+    """Kernel filling a dense grid of F values, one thread per 8^3 block of
+    grid points (array mode: one tree walk per block)."""
+    evaluate_block = make_evaluate(True, derivatives=False, array=True)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def grid_blocks_kernel(
+        m: ModelArrays,
+        origin: wp.vec3,
+        h: float,
+        shape: wp.vec3i,
+        blocks: wp.vec3i,
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        values: wp.array3d(dtype=wp.float32),
+    ):
+        t = wp.tid() + offset
+        b = first_block + t
+        ctx = BlockRows()
+        ctx.rows = rows
+        ctx.base = t * (result_slot + 2) * _BPOINTS
+        ctx.result = result_slot
+        ctx.origin = origin
+        ctx.h = h
+        ctx.corner = wp.vec3i(
+            (b % blocks[0]) * _BSIDE, ((b // blocks[0]) % blocks[1]) * _BSIDE, (b // (blocks[0] * blocks[1])) * _BSIDE
+        )
+        want = ctx.base + (result_slot + 1) * _BPOINTS
+        for l in range(_BPOINTS):
+            gx = ctx.corner[0] + l % _BSIDE
+            gy = ctx.corner[1] + (l // _BSIDE) % _BSIDE
+            gz = ctx.corner[2] + l // (_BSIDE * _BSIDE)
+            rows[want + l] = wp.where(gx < shape[0] and gy < shape[1] and gz < shape[2], 1.0, 0.0)
+        r = evaluate_block(m, ctx)
+        src = ctx.base + int(r[6]) * _BPOINTS
+        for l in range(_BPOINTS):
+            if rows[want + l] != 0.0:
+                i = l % _BSIDE
+                j = (l // _BSIDE) % _BSIDE
+                k = l // (_BSIDE * _BSIDE)
+                v = float(0.0)
+                if in_range(r, i, j, k):
+                    v = rows[src + l]
+                values[ctx.corner[0] + i, ctx.corner[1] + j, ctx.corner[2] + k] = v
+
+    return grid_blocks_kernel

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..field._kernels import ModelArrays, make_evaluate, make_segment_root, vec7
+from ..field._kernels import BLOCK_POINTS, BlockRows, ModelArrays, cubic_guess, in_range, make_evaluate, make_segment_root, vec7
 from ._tables import APEX
 
 BLOCK = 8  # cells per block side
 CELLS = BLOCK * BLOCK * BLOCK
+assert CELLS == BLOCK_POINTS  # array-mode evaluation works on whole blocks
 MAX_LOOP = 12
 
 _BLOCK = wp.constant(BLOCK)
@@ -85,10 +86,10 @@ def sample_at(
     block_map: wp.array(dtype=wp.int32),
     block_states: wp.array(dtype=wp.int32),
 ):
-    """Sample at block-local vertex (li, lj, lk) in [0, 8]^3 of active block ``a``
+    """Sample at block-local vertex (li, lj, lk) in [-1, 9]^3 (inside the grid) of active block ``a``
     at block coordinates ``b``: its own, a neighbour's, or a rejected
     neighbour's stand-in."""
-    if li < _BLOCK and lj < _BLOCK and lk < _BLOCK:
+    if li >= 0 and lj >= 0 and lk >= 0 and li < _BLOCK and lj < _BLOCK and lk < _BLOCK:
         return samples[a * _CELLS + (lk * _BLOCK + lj) * _BLOCK + li]
     gx = b[0] * _BLOCK + li
     gy = b[1] * _BLOCK + lj
@@ -103,6 +104,36 @@ def sample_at(
     if na < 0:
         return wp.where(block_states[nb] == 1, iso + 0.5, iso - 0.5)
     return samples[na * _CELLS + ((gz - bz * _BLOCK) * _BLOCK + (gy - by * _BLOCK)) * _BLOCK + (gx - bx * _BLOCK)]
+
+
+@wp.func
+def vertex_need(
+    g: Grid,
+    v: wp.vec3i,
+    block_map: wp.array(dtype=wp.int32),
+    block_states: wp.array(dtype=wp.int32),
+    states: wp.array(dtype=wp.int32),
+):
+    """(needed, proven) for grid vertex ``v``: needed (1) when it touches a
+    sub-block that may hold surface (in its block or a neighbour), else the
+    proven side (1 inside, 2 outside) of a sub-block it touches."""
+    needed = int(0)
+    proven = int(0)
+    for dk in range(2):
+        zk = v[2] - 1 + dk
+        if zk >= 0 and (dk == 0 or zk // _SUB != (v[2] - 1) // _SUB or v[2] == 0):
+            for dj in range(2):
+                zj = v[1] - 1 + dj
+                if zj >= 0 and (dj == 0 or zj // _SUB != (v[1] - 1) // _SUB or v[1] == 0):
+                    for di in range(2):
+                        zi = v[0] - 1 + di
+                        if zi >= 0 and (di == 0 or zi // _SUB != (v[0] - 1) // _SUB or v[0] == 0):
+                            st = sub_state(g, wp.vec3i(zi // _SUB, zj // _SUB, zk // _SUB), block_map, block_states, states)
+                            if st == 0:
+                                needed = 1
+                            elif st > 0:
+                                proven = st
+    return wp.vec2i(needed, proven)
 
 
 @wp.func
@@ -144,6 +175,7 @@ def make_kernels():
     bound = make_evaluate(True, interval=True)
     value = make_evaluate(True)
     value_only = make_evaluate(True, derivatives=False)
+    block_value = make_evaluate(True, derivatives=False, array=True)
     segment_root = make_segment_root(value)
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -210,28 +242,59 @@ def make_kernels():
         c = block_coords(g, active[a])
         lc = local_cell(tid - a * _CELLS)
         v = wp.vec3i(c[0] * _BLOCK + lc[0], c[1] * _BLOCK + lc[1], c[2] * _BLOCK + lc[2])
-        needed = bool(False)
-        proven = int(0)
-        for dk in range(2):
-            zk = v[2] - 1 + dk
-            if zk >= 0 and (dk == 0 or zk // _SUB != (v[2] - 1) // _SUB or v[2] == 0):
-                for dj in range(2):
-                    zj = v[1] - 1 + dj
-                    if zj >= 0 and (dj == 0 or zj // _SUB != (v[1] - 1) // _SUB or v[1] == 0):
-                        for di in range(2):
-                            zi = v[0] - 1 + di
-                            if zi >= 0 and (di == 0 or zi // _SUB != (v[0] - 1) // _SUB or v[0] == 0):
-                                st = sub_state(g, wp.vec3i(zi // _SUB, zj // _SUB, zk // _SUB), block_map, block_states, states)
-                                if st == 0:
-                                    needed = True
-                                elif st > 0:
-                                    proven = st
-        if needed:
+        need = vertex_need(g, v, block_map, block_states, states)
+        if need[0] != 0:
             samples[tid] = value_only(m, vertex_position(g, v[0], v[1], v[2]), 0.0)[0]
             evaluated[tid] = 1
         else:
-            samples[tid] = wp.where(proven == 1, iso + 0.5, iso - 0.5)
+            samples[tid] = wp.where(need[1] == 1, iso + 0.5, iso - 0.5)
             evaluated[tid] = 0
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def sample_rows_kernel(
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        active: wp.array(dtype=wp.int32),
+        block_map: wp.array(dtype=wp.int32),
+        block_states: wp.array(dtype=wp.int32),
+        states: wp.array(dtype=wp.int32),
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        samples: wp.array(dtype=wp.float32),
+        evaluated: wp.array(dtype=wp.int32),
+    ):
+        """The same samples as ``sample_blocks_kernel``, one thread per block:
+        the tree is walked once for the block's 512 vertices (array mode), so
+        its traversal cost is shared instead of paid per point."""
+        t = wp.tid() + offset
+        a = first_block + t
+        c = block_coords(g, active[a])
+        ctx = BlockRows()
+        ctx.rows = rows
+        ctx.base = t * (result_slot + 2) * _CELLS
+        ctx.result = result_slot
+        ctx.origin = g.origin
+        ctx.h = g.h
+        ctx.corner = wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK)
+        want = ctx.base + (result_slot + 1) * _CELLS
+        for l in range(_CELLS):
+            lc = local_cell(l)
+            need = vertex_need(g, wp.vec3i(ctx.corner[0] + lc[0], ctx.corner[1] + lc[1], ctx.corner[2] + lc[2]), block_map, block_states, states)
+            rows[want + l] = float(need[0])
+            samples[a * _CELLS + l] = wp.where(need[1] == 1, iso + 0.5, iso - 0.5)
+            evaluated[a * _CELLS + l] = need[0]
+        r = block_value(m, ctx)
+        src = ctx.base + int(r[6]) * _CELLS
+        for l in range(_CELLS):
+            if rows[want + l] != 0.0:
+                lc = local_cell(l)
+                v = float(0.0)
+                if in_range(r, lc[0], lc[1], lc[2]):
+                    v = rows[src + l]
+                samples[a * _CELLS + l] = v
 
     @wp.kernel(enable_backward=False, module="unique")
     def count_kernel(
@@ -349,14 +412,17 @@ def make_kernels():
             if (mask >> axis) & 1 != 0:
                 step = wp.vec3(0.0)
                 step[axis] = g.h
-                f1 = float(0.0)
-                if axis == 0:
-                    f1 = sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states) - iso
-                elif axis == 1:
-                    f1 = sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states) - iso
-                else:
-                    f1 = sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states) - iso
-                r, t, count = segment_root(m, p0, step, f0, f1, iso, tolerance, max_iterations)
+                # the samples before and after the edge along its axis shape a cubic start
+                d = wp.vec3i(0)
+                d[axis] = 1
+                f1 = sample_at(g, a, c, i + d[0], j + d[1], k + d[2], iso, samples, block_map, block_states) - iso
+                t0 = float(-1.0)
+                gv = wp.vec3i(c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
+                if gv[axis] >= 1 and gv[axis] + 2 <= g.cells[axis]:
+                    fm = sample_at(g, a, c, i - d[0], j - d[1], k - d[2], iso, samples, block_map, block_states) - iso
+                    f2 = sample_at(g, a, c, i + 2 * d[0], j + 2 * d[1], k + 2 * d[2], iso, samples, block_map, block_states) - iso
+                    t0 = cubic_guess(fm, f0, f1, f2)
+                r, t, count = segment_root(m, p0, step, f0, f1, t0, iso, tolerance, max_iterations)
                 store_vertex(out, p0 + t * step, r, count, positions, normals, colors, evaluations)
                 out += 1
 
@@ -561,6 +627,7 @@ def make_kernels():
         "classify": classify_blocks_kernel,
         "classify_sub": classify_subblocks_kernel,
         "sample": sample_blocks_kernel,
+        "sample_rows": sample_rows_kernel,
         "count": count_kernel,
         "vertex": vertex_kernel,
         "centre": centre_kernel,

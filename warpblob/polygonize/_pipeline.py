@@ -19,6 +19,17 @@ from . import _kernels, _tables
 __all__ = ["polygonize", "available_memory"]
 
 _CACHE: dict = {}
+#: grid sampling: "rows" walks the tree once per block for its 512 vertices
+#: (array mode: the traversal cost is shared, best for CPU threads), "points"
+#: once per vertex (one GPU thread each), "auto" picks by device
+SAMPLING = "auto"
+_ROWS_BYTES = 64 << 20  # scratch of one array-mode launch
+
+
+def _use_rows(device) -> bool:
+    if SAMPLING == "auto":
+        return device.is_cpu
+    return SAMPLING == "rows"
 
 
 def _kernel_set():
@@ -177,9 +188,22 @@ def polygonize(
     lap("classify_subblocks")
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
     evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
-    launch(
-        kernels["sample"], n_samples, [m, g, float(iso), active, block_map, block_states, states], [samples, evaluated], dev, threads
-    )
+    if _use_rows(dev):
+        # one thread per block walks the tree once for its 512 vertices
+        row_bytes = (lm.registers + 2) * _kernels.CELLS * 4
+        chunk = max(1, min(n_active, _ROWS_BYTES // row_bytes))
+        check_memory("polygonize", "block sampling", chunk * row_bytes, limit)
+        rows = wp.zeros(chunk * row_bytes // 4, dtype=wp.float32, device=dev)
+        for first in range(0, n_active, chunk):
+            launch(
+                kernels["sample_rows"], min(chunk, n_active - first),
+                [m, g, float(iso), active, block_map, block_states, states, first, rows, lm.registers],
+                [samples, evaluated], dev, threads,
+            )  # fmt: skip
+    else:
+        launch(
+            kernels["sample"], n_samples, [m, g, float(iso), active, block_map, block_states, states], [samples, evaluated], dev, threads
+        )
     lap("sample")
 
     # 3. crossed edges, cell configurations, counts and prefix sums

@@ -250,7 +250,7 @@ def make_kernels():
                 e = edge_end(q, slot)
                 step = point_position(l, e) - p0
                 f1 = values[point_index(l, e[0], wp.vec3i(e[1], e[2], e[3]))] - iso
-                r, tx, count = segment_root(m, p0, step, f0, f1, iso, tolerance, max_iterations)
+                r, tx, count = segment_root(m, p0, step, f0, f1, -1.0, iso, tolerance, max_iterations)
                 cut_positions[out] = p0 + tx * step
                 cut_params[out] = tx
                 evaluations[out] = count
