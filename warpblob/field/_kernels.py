@@ -647,6 +647,28 @@ _BPOINTS = wp.constant(BLOCK_POINTS)
 
 
 @wp.func
+def block_rows(rows: wp.array(dtype=wp.float32), t: int, result: int, origin: wp.vec3, h: float, corner: wp.vec3i):
+    """The :class:`BlockRows` of the ``t``-th block of a launch (its rows at
+    ``t * (result + 2) * BLOCK_POINTS``), first point at grid index ``corner``."""
+    ctx = BlockRows()
+    ctx.rows = rows
+    ctx.base = t * (result + 2) * _BPOINTS
+    ctx.result = result
+    ctx.origin = origin
+    ctx.h = h
+    ctx.corner = corner
+    return ctx
+
+
+@wp.func
+def block_result(ctx: BlockRows, r: vec7, l: int):
+    """F at block point ``l`` from a finished array-mode walk's result ``r``."""
+    if in_range(r, l % _BSIDE, (l // _BSIDE) % _BSIDE, l // (_BSIDE * _BSIDE)):
+        return ctx.rows[ctx.base + int(r[6]) * _BPOINTS + l]
+    return 0.0
+
+
+@wp.func
 def grid_point(origin: wp.vec3, h: float, gx: int, gy: int, gz: int):
     """Position of grid vertex (gx, gy, gz): ``origin + h * (gx, gy, gz)``."""
     return origin + h * wp.vec3(float(gx), float(gy), float(gz))
@@ -1189,15 +1211,10 @@ def make_grid_kernel():
     ):
         t = wp.tid() + offset
         b = first_block + t
-        ctx = BlockRows()
-        ctx.rows = rows
-        ctx.base = t * (result_slot + 2) * _BPOINTS
-        ctx.result = result_slot
-        ctx.origin = origin
-        ctx.h = h
-        ctx.corner = wp.vec3i(
+        corner = wp.vec3i(
             (b % blocks[0]) * _BSIDE, ((b // blocks[0]) % blocks[1]) * _BSIDE, (b // (blocks[0] * blocks[1])) * _BSIDE
         )
+        ctx = block_rows(rows, t, result_slot, origin, h, corner)
         want = ctx.base + (result_slot + 1) * _BPOINTS
         for l in range(_BPOINTS):
             gx = ctx.corner[0] + l % _BSIDE
@@ -1205,15 +1222,8 @@ def make_grid_kernel():
             gz = ctx.corner[2] + l // (_BSIDE * _BSIDE)
             rows[want + l] = wp.where(gx < shape[0] and gy < shape[1] and gz < shape[2], 1.0, 0.0)
         r = evaluate_block(m, ctx)
-        src = ctx.base + int(r[6]) * _BPOINTS
         for l in range(_BPOINTS):
             if rows[want + l] != 0.0:
-                i = l % _BSIDE
-                j = (l // _BSIDE) % _BSIDE
-                k = l // (_BSIDE * _BSIDE)
-                v = float(0.0)
-                if in_range(r, i, j, k):
-                    v = rows[src + l]
-                values[ctx.corner[0] + i, ctx.corner[1] + j, ctx.corner[2] + k] = v
+                values[corner[0] + l % _BSIDE, corner[1] + (l // _BSIDE) % _BSIDE, corner[2] + l // (_BSIDE * _BSIDE)] = block_result(ctx, r, l)
 
     return grid_blocks_kernel

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..field._kernels import BLOCK_POINTS, BlockRows, ModelArrays, cubic_guess, in_range, make_evaluate, make_segment_root, vec7
+from ..field._kernels import BLOCK_POINTS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate, make_segment_root, vec7
 from ._tables import APEX
 
 BLOCK = 8  # cells per block side
@@ -272,13 +272,7 @@ def make_kernels():
         t = wp.tid() + offset
         a = first_block + t
         c = block_coords(g, active[a])
-        ctx = BlockRows()
-        ctx.rows = rows
-        ctx.base = t * (result_slot + 2) * _CELLS
-        ctx.result = result_slot
-        ctx.origin = g.origin
-        ctx.h = g.h
-        ctx.corner = wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK)
+        ctx = block_rows(rows, t, result_slot, g.origin, g.h, wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK))
         want = ctx.base + (result_slot + 1) * _CELLS
         for l in range(_CELLS):
             lc = local_cell(l)
@@ -287,14 +281,9 @@ def make_kernels():
             samples[a * _CELLS + l] = wp.where(need[1] == 1, iso + 0.5, iso - 0.5)
             evaluated[a * _CELLS + l] = need[0]
         r = block_value(m, ctx)
-        src = ctx.base + int(r[6]) * _CELLS
         for l in range(_CELLS):
             if rows[want + l] != 0.0:
-                lc = local_cell(l)
-                v = float(0.0)
-                if in_range(r, lc[0], lc[1], lc[2]):
-                    v = rows[src + l]
-                samples[a * _CELLS + l] = v
+                samples[a * _CELLS + l] = block_result(ctx, r, l)
 
     @wp.kernel(enable_backward=False, module="unique")
     def count_kernel(
