@@ -186,6 +186,25 @@ def color(model, points, *, device=None, prune: bool = True, threads: int | None
 ROWS_BYTES = 64 << 20
 
 
+def block_chunk(lm: LinearModel, n_blocks: int) -> tuple[int, int]:
+    """(blocks per array-mode launch, scratch bytes of one launch) for ``n_blocks``
+    blocks: a block's rows take (registers + 2) x 512 floats, a launch at most
+    :data:`ROWS_BYTES` (at least one block)."""
+    row_bytes = (lm.registers + 2) * _kernels.BLOCK_POINTS * 4
+    chunk = max(1, min(n_blocks, ROWS_BYTES // row_bytes))
+    return chunk, chunk * row_bytes
+
+
+def launch_blocks(kernel, n_blocks: int, inputs: list, outputs: list, lm: LinearModel, device, threads=None):
+    """Launch an array-mode kernel over ``n_blocks`` blocks in chunks of
+    :func:`block_chunk`; the kernel takes ``inputs``, then ``first_block``,
+    the scratch ``rows`` and the result slot, then ``offset`` and ``outputs``."""
+    chunk, nbytes = block_chunk(lm, n_blocks)
+    rows = wp.zeros(nbytes // 4, dtype=wp.float32, device=device)
+    for first in range(0, n_blocks, chunk):
+        launch(kernel, min(chunk, n_blocks - first), [*inputs, first, rows, lm.registers], outputs, device, threads)
+
+
 def grid_field(model, origin, cellsize: float, shape, *, device=None, threads: int | None = None) -> np.ndarray:
     """F on a regular grid, ``values[i, j, k] = F(origin + cellsize * (i, j, k))``.
 
@@ -224,16 +243,8 @@ def grid_field(model, origin, cellsize: float, shape, *, device=None, threads: i
     blocks = [-(-n // _kernels.BLOCK_SIDE) for n in dims]
     n_blocks = int(np.prod(blocks))
     values = wp.empty(dims, dtype=wp.float32, device=dev)
-    row_bytes = (lm.registers + 2) * _kernels.BLOCK_POINTS * 4
-    chunk = max(1, min(n_blocks, ROWS_BYTES // row_bytes))
-    rows = wp.zeros(chunk * row_bytes // 4, dtype=wp.float32, device=dev)
     if "grid" not in _KERNELS:
         _KERNELS["grid"] = _kernels.make_grid_kernel()
-    m = model_arrays(lm, dev)
-    for first in range(0, n_blocks, chunk):
-        launch(
-            _KERNELS["grid"], min(chunk, n_blocks - first),
-            [m, wp.vec3(*o.astype(np.float32)), h, wp.vec3i(*dims), wp.vec3i(*blocks), first, rows, lm.registers],
-            [values], dev, threads,
-        )  # fmt: skip
+    inputs = [model_arrays(lm, dev), wp.vec3(*o.astype(np.float32)), h, wp.vec3i(*dims), wp.vec3i(*blocks)]
+    launch_blocks(_KERNELS["grid"], n_blocks, inputs, [values], lm, dev, threads)
     return values.numpy()

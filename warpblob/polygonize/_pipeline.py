@@ -11,7 +11,7 @@ from .._errors import ResourceError, WarpblobError
 from .._stages import available_memory, check_memory, compact, scan
 from .._linearize import linearize
 from .._parallel import launch
-from ..field._engine import model_arrays, resolve_device
+from ..field._engine import block_chunk, launch_blocks, model_arrays, resolve_device
 from ..mesh import SurfaceMesh
 from ..tree import ISO_VALUE
 from . import _kernels, _tables
@@ -23,7 +23,6 @@ _CACHE: dict = {}
 #: (array mode: the traversal cost is shared, best for CPU threads), "points"
 #: once per vertex (one GPU thread each), "auto" picks by device
 SAMPLING = "auto"
-_ROWS_BYTES = 64 << 20  # scratch of one array-mode launch
 
 
 def _use_rows(device) -> bool:
@@ -190,16 +189,9 @@ def polygonize(
     evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
     if _use_rows(dev):
         # one thread per block walks the tree once for its 512 vertices
-        row_bytes = (lm.registers + 2) * _kernels.CELLS * 4
-        chunk = max(1, min(n_active, _ROWS_BYTES // row_bytes))
-        check_memory("polygonize", "block sampling", chunk * row_bytes, limit)
-        rows = wp.zeros(chunk * row_bytes // 4, dtype=wp.float32, device=dev)
-        for first in range(0, n_active, chunk):
-            launch(
-                kernels["sample_rows"], min(chunk, n_active - first),
-                [m, g, float(iso), active, block_map, block_states, states, first, rows, lm.registers],
-                [samples, evaluated], dev, threads,
-            )  # fmt: skip
+        check_memory("polygonize", "block sampling", block_chunk(lm, n_active)[1], limit)
+        inputs = [m, g, float(iso), active, block_map, block_states, states]
+        launch_blocks(kernels["sample_rows"], n_active, inputs, [samples, evaluated], lm, dev, threads)
     else:
         launch(
             kernels["sample"], n_samples, [m, g, float(iso), active, block_map, block_states, states], [samples, evaluated], dev, threads
