@@ -805,6 +805,144 @@ def finalize_rows(kind: int, k: float, acc: vec7, ctx: BlockRows, sp: int):
     return vec7(acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], float(sp), 0.0)
 
 
+# bounds rows: array mode for interval bounds over the 4^3 sub-blocks (2^3
+# cells each) of an 8^3-cell block; entry j of a row is sub-block j's F_min,
+# entry BOUND_SUBS + j its F_max (rows keep the BLOCK_POINTS stride)
+
+SUB_BLOCK_SIDE = 4
+SUB_BLOCKS = SUB_BLOCK_SIDE * SUB_BLOCK_SIDE * SUB_BLOCK_SIDE
+_SSIDE = wp.constant(SUB_BLOCK_SIDE)
+_SUBS = wp.constant(SUB_BLOCKS)
+#: ball radius of a 2-cell sub-block in cells: its half diagonal sqrt(3), plus 1e-4
+SUB_BALL = 1.7320509 * 1.0001
+_SUB_BALL = wp.constant(SUB_BALL)
+
+
+@wp.func
+def sub_block_ball(ctx: BlockRows, si: int, sj: int, sk: int):
+    """(centre, radius) of the ball around sub-block (si, sj, sk) of the block
+    whose first cell is at grid index ``ctx.corner``."""
+    c = grid_point(ctx.origin, ctx.h, ctx.corner[0] + 2 * si + 1, ctx.corner[1] + 2 * sj + 1, ctx.corner[2] + 2 * sk + 1)
+    return c, ctx.h * _SUB_BALL
+
+
+@wp.func
+def sub_range(ctx: BlockRows, lo: wp.vec3, hi: wp.vec3):
+    """Index range (i0, j0, k0, i1, j1, k1, 0, 0) of the sub-blocks whose ball
+    (tested as its bounding cube, as :func:`ball_meets_box` does) meets the
+    box [lo, hi], widened by 1e-3 cells: a sub-block left out provably sees
+    F = 0 of that node."""
+    a = (lo - ctx.origin) / ctx.h
+    b = (hi - ctx.origin) / ctx.h
+    r = vec7()
+    for d in range(3):
+        c = float(ctx.corner[d]) + 1.0
+        r[d] = float(wp.max(int(wp.ceil(0.5 * (a[d] - _SUB_BALL - c) - 1.0e-3)), 0))
+        r[d + 3] = float(wp.min(int(wp.floor(0.5 * (b[d] + _SUB_BALL - c) + 1.0e-3)), _SSIDE - 1))
+    return r
+
+
+@wp.func
+def clear_bounds(ctx: BlockRows, row: int):
+    start = ctx.base + row * _BPOINTS
+    for j in range(2 * _SUBS):
+        ctx.rows[start + j] = 0.0
+
+
+@wp.func
+def bounds_leaf(m: ModelArrays, node: int, ctx: BlockRows):
+    """Bounds rows: (F_min, F_max) of primitive ``node`` over each sub-block
+    ball in its range into the result slot ([0, inf) for a warp, as interval
+    mode); returns (range, result slot)."""
+    rg = sub_range(ctx, m.lower[node], m.upper[node])
+    res = ctx.base + ctx.result * _BPOINTS
+    warped = m.kind[node] >= K_TWIST
+    for kk in range(int(rg[2]), int(rg[5]) + 1):
+        for jj in range(int(rg[1]), int(rg[4]) + 1):
+            for ii in range(int(rg[0]), int(rg[3]) + 1):
+                j = (kk * _SSIDE + jj) * _SSIDE + ii
+                b = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+                if not warped:
+                    c, rad = sub_block_ball(ctx, ii, jj, kk)
+                    b = interval_primitive(m, node, c, rad)
+                ctx.rows[res + j] = b[0]
+                ctx.rows[res + _SUBS + j] = b[1]
+    return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
+
+
+@wp.func
+def bounds_at(ctx: BlockRows, row: int, j: int):
+    at = ctx.base + row * _BPOINTS + j
+    return vec7(ctx.rows[at], ctx.rows[at + _SUBS], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@wp.func
+def set_bounds(ctx: BlockRows, row: int, j: int, b: vec7):
+    at = ctx.base + row * _BPOINTS + j
+    ctx.rows[at] = b[0]
+    ctx.rows[at + _SUBS] = b[1]
+
+
+@wp.func
+def fold_bounds(kind: int, p0: float, acc: vec7, r: vec7, first: bool, ctx: BlockRows, sp: int):
+    """Bounds-rows :func:`combine_interval`, with the range logic of
+    :func:`fold_rows` (sub-blocks outside a range hold [0, 0])."""
+    src_row = int(r[6])
+    if first:
+        if src_row != sp:
+            clear_bounds(ctx, sp)
+        for kk in range(int(r[2]), int(r[5]) + 1):
+            for jj in range(int(r[1]), int(r[4]) + 1):
+                for ii in range(int(r[0]), int(r[3]) + 1):
+                    j = (kk * _SSIDE + jj) * _SSIDE + ii
+                    set_bounds(ctx, sp, j, combine_interval(kind, p0, vec7(), bounds_at(ctx, src_row, j), True))
+        return vec7(r[0], r[1], r[2], r[3], r[4], r[5], float(sp), 0.0)
+    if kind == K_BLEND or kind == K_SMOOTH or kind == K_UNION:
+        for kk in range(int(r[2]), int(r[5]) + 1):
+            for jj in range(int(r[1]), int(r[4]) + 1):
+                for ii in range(int(r[0]), int(r[3]) + 1):
+                    j = (kk * _SSIDE + jj) * _SSIDE + ii
+                    set_bounds(ctx, sp, j, combine_interval(kind, p0, bounds_at(ctx, sp, j), bounds_at(ctx, src_row, j), False))
+        return vec7(
+            wp.min(acc[0], r[0]), wp.min(acc[1], r[1]), wp.min(acc[2], r[2]),
+            wp.max(acc[3], r[3]), wp.max(acc[4], r[4]), wp.max(acc[5], r[5]), float(sp), 0.0,
+        )  # fmt: skip
+    # intersection and difference see every sub-block ([0, 0] outside a range matters)
+    for j in range(_SUBS):
+        v = vec7()
+        if in_range(r, j % _SSIDE, (j // _SSIDE) % _SSIDE, j // (_SSIDE * _SSIDE)):
+            v = bounds_at(ctx, src_row, j)
+        set_bounds(ctx, sp, j, combine_interval(kind, p0, bounds_at(ctx, sp, j), v, False))
+    if kind == K_INTERSECTION:
+        return vec7(
+            wp.max(acc[0], r[0]), wp.max(acc[1], r[1]), wp.max(acc[2], r[2]),
+            wp.min(acc[3], r[3]), wp.min(acc[4], r[4]), wp.min(acc[5], r[5]), float(sp), 0.0,
+        )  # fmt: skip
+    if p0 > 0.5:
+        return vec7(r[0], r[1], r[2], r[3], r[4], r[5], float(sp), 0.0)
+    return acc
+
+
+@wp.func
+def finalize_bounds(kind: int, k: float, acc: vec7, ctx: BlockRows, sp: int):
+    """Bounds-rows :func:`finalize_interval`: a smooth blend's root over its range."""
+    if kind == K_SMOOTH:
+        for kk in range(int(acc[2]), int(acc[5]) + 1):
+            for jj in range(int(acc[1]), int(acc[4]) + 1):
+                for ii in range(int(acc[0]), int(acc[3]) + 1):
+                    j = (kk * _SSIDE + jj) * _SSIDE + ii
+                    set_bounds(ctx, sp, j, finalize_interval(kind, k, bounds_at(ctx, sp, j)))
+    return vec7(acc[0], acc[1], acc[2], acc[3], acc[4], acc[5], float(sp), 0.0)
+
+
+@wp.func
+def sub_bounds(ctx: BlockRows, r: vec7, j: int):
+    """(F_min, F_max) of sub-block ``j`` from a finished bounds-rows walk's result ``r``."""
+    if in_range(r, j % _SSIDE, (j // _SSIDE) % _SSIDE, j // (_SSIDE * _SSIDE)):
+        return bounds_at(ctx, int(r[6]), j)
+    return vec7()
+
+
 def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, _core: bool = False):
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
@@ -817,9 +955,12 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
     """
     use_grid = prune
     # array mode walks the tree once per block, pruning like interval mode over
-    # the block's cube; warps inside it are evaluated point by point
+    # the block's cube; warps inside it are evaluated point by point. With
+    # ``interval`` too it bounds F over the block's 64 sub-blocks (bounds rows).
     spatial = interval or array
-    point = make_evaluate(True, derivatives=False, _core=True) if array else None
+    bounds = interval and array
+    ball = interval and not array
+    point = make_evaluate(True, derivatives=False, _core=True) if array and not interval else None
 
     @wp.func
     def walks_grid(m: ModelArrays, node: int, q: wp.vec3, radius: float):
@@ -837,7 +978,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
 
     @wp.func
     def get_slot(sv: vec_slots, sh: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
-        if wp.static(interval):
+        if wp.static(ball):
             return vec7(sv[sp], sh[sp], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         if wp.static(array):
             lo = sg[sp]
@@ -873,7 +1014,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                         if leaf:
                             x = apply_inverse(inv, p)
                             v = falloff(primitive_distance(kind, x, prm, m.data, start)[0] / rad)[0]
-                        elif wp.static(array):
+                        elif wp.static(array and not interval):
                             v = point(m, p, 0.0, node, ctx)[0]
                         ctx.rows[res + j] = v
         return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
@@ -907,7 +1048,9 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                         r = empty_range(ctx.result)
                     descending = False
                 elif kind < K_PRIM_END:
-                    if wp.static(interval):
+                    if wp.static(bounds):
+                        r = bounds_leaf(m, i, ctx)
+                    elif wp.static(interval):
                         r = interval_primitive(m, i, q, radius)
                     elif wp.static(array):
                         r = rows_leaf(m, i, ctx)
@@ -917,7 +1060,10 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                         r = primitive_value(m, i, q)
                     descending = False
                 elif kind >= K_TWIST:
-                    if wp.static(interval):
+                    if wp.static(bounds):
+                        r = bounds_leaf(m, i, ctx)
+                        descending = False
+                    elif wp.static(interval):
                         r = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                         descending = False
                     elif wp.static(array):
@@ -947,10 +1093,13 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                     if first_op[2] >= 0:
                         sp += 1
                         sv[sp] = 0.0
-                        if wp.static(interval):
+                        if wp.static(ball):
                             sh[sp] = 0.0
                         if wp.static(array):
-                            clear_row(ctx, sp)
+                            if wp.static(bounds):
+                                clear_bounds(ctx, sp)
+                            else:
+                                clear_row(ctx, sp)
                             e = empty_range(sp)
                             sg[sp] = wp.vec3(e[0], e[1], e[2])
                             sc[sp] = wp.vec3(e[3], e[4], e[5])
@@ -987,14 +1136,16 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                     if first:
                         sp += 1
                     acc = vec7()
-                    if wp.static(interval):
+                    if wp.static(bounds):
+                        acc = fold_bounds(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
+                    elif wp.static(interval):
                         acc = combine_interval(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
                     elif wp.static(array):
                         acc = fold_rows(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
                     else:
                         acc = combine_kind(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
                     sv[sp] = acc[0]
-                    if wp.static(interval):
+                    if wp.static(ball):
                         sh[sp] = acc[1]
                     if wp.static(array):
                         sg[sp] = wp.vec3(acc[0], acc[1], acc[2])
@@ -1019,7 +1170,7 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                             nxt = -1
                         # an intersection that reached 0 stays 0 (every field is >= 0)
                         if wp.static(prune) and pk == K_INTERSECTION:
-                            if wp.static(interval):
+                            if wp.static(ball):
                                 if acc[1] <= 0.0:
                                     nxt = -1
                             elif wp.static(array):
@@ -1031,7 +1182,9 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                         i = nxt
                         descending = True
                     else:
-                        if wp.static(interval):
+                        if wp.static(bounds):
+                            r = finalize_bounds(pk, prm[0], acc, ctx, sp)
+                        elif wp.static(interval):
                             r = finalize_interval(pk, prm[0], acc)
                         elif wp.static(array):
                             r = finalize_rows(pk, prm[0], acc, ctx, sp)
@@ -1043,6 +1196,16 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
 
     if _core:
         return traverse
+    if bounds:
+
+        @wp.func
+        def evaluate_bounds(m: ModelArrays, ctx: BlockRows):
+            # the cube around the sub-block centres (corner + 1 ... corner + 7)
+            # grown by a sub-block ball: it meets every box a sub-block ball meets
+            c = grid_point(ctx.origin, ctx.h, ctx.corner[0] + 4, ctx.corner[1] + 4, ctx.corner[2] + 4)
+            return traverse(m, c, ctx.h * (3.0 + _SUB_BALL) * 1.0001, 0, ctx)
+
+        return evaluate_bounds
     if array:
 
         @wp.func
@@ -1227,3 +1390,32 @@ def make_grid_kernel():
                 values[corner[0] + l % _BSIDE, corner[1] + (l // _BSIDE) % _BSIDE, corner[2] + l // (_BSIDE * _BSIDE)] = block_result(ctx, r, l)
 
     return grid_blocks_kernel
+
+
+def make_block_bounds_kernel():
+    """Kernel bounding F over the 64 sub-blocks (2^3 cells) of 8^3-cell grid
+    blocks, one thread per block (bounds rows: one tree walk per block)."""
+    evaluate_bounds = make_evaluate(True, interval=True, array=True)
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def bound_blocks_kernel(
+        m: ModelArrays,
+        origin: wp.vec3,
+        h: float,
+        blocks: wp.array(dtype=wp.vec3i),
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        bounds: wp.array(dtype=wp.vec2),
+    ):
+        t = wp.tid() + offset
+        b = first_block + t
+        c = blocks[b]
+        ctx = block_rows(rows, t, result_slot, origin, h, wp.vec3i(c[0] * _BSIDE, c[1] * _BSIDE, c[2] * _BSIDE))
+        r = evaluate_bounds(m, ctx)
+        for j in range(_SUBS):
+            s = sub_bounds(ctx, r, j)
+            bounds[b * _SUBS + j] = wp.vec2(s[0], s[1])
+
+    return bound_blocks_kernel

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..field._kernels import BLOCK_POINTS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate, make_segment_root, vec7
+from ..field._kernels import (
+    BLOCK_POINTS, SUB_BLOCKS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate, make_segment_root,
+    sub_bounds, vec7,
+)  # fmt: skip
 from ._tables import APEX
 
 BLOCK = 8  # cells per block side
@@ -20,6 +23,7 @@ SUB_SIDE = BLOCK // SUB  # sub-blocks per block side
 _SUB = wp.constant(SUB)
 _SUB_SIDE = wp.constant(SUB_SIDE)
 _SUBS = wp.constant(SUB_SIDE * SUB_SIDE * SUB_SIDE)
+assert SUB_SIDE**3 == SUB_BLOCKS  # bounds rows cover a block's sub-blocks
 
 vec12i = wp.types.vector(length=MAX_LOOP, dtype=wp.int32)
 vec8 = wp.types.vector(length=8, dtype=wp.float32)
@@ -176,6 +180,7 @@ def make_kernels():
     value = make_evaluate(True)
     value_only = make_evaluate(True, derivatives=False)
     block_value = make_evaluate(True, derivatives=False, array=True)
+    block_bounds = make_evaluate(True, interval=True, array=True)
     segment_root = make_segment_root(value)
 
     @wp.kernel(enable_backward=False, module="unique")
@@ -219,6 +224,61 @@ def make_kernels():
         r = bound(m, g.origin + g.h * corner, half * g.h * 1.7320509 * 1.0001)
         state = proven_side(r, iso)
         states[tid] = state
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def classify_block_rows_kernel(
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        supers: wp.vec3i,
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        flags: wp.array(dtype=wp.int32),
+        block_states: wp.array(dtype=wp.int32),
+    ):
+        """The flags and states of ``classify_blocks_kernel``, one thread per
+        super-block of 4^3 blocks: bounds rows on the grid of spacing 4 h,
+        whose 2-cell sub-blocks are our blocks, with the same balls."""
+        t = wp.tid() + offset
+        s = first_block + t
+        sc = wp.vec3i(s % supers[0], (s // supers[0]) % supers[1], s // (supers[0] * supers[1]))
+        scale = _BLOCK // _SUB
+        ctx = block_rows(rows, t, result_slot, g.origin, g.h * float(scale), wp.vec3i(sc[0] * _BLOCK, sc[1] * _BLOCK, sc[2] * _BLOCK))
+        r = block_bounds(m, ctx)
+        for sb in range(_SUBS):
+            bx = sc[0] * scale + sb % _SUB_SIDE
+            by = sc[1] * scale + (sb // _SUB_SIDE) % _SUB_SIDE
+            bz = sc[2] * scale + sb // (_SUB_SIDE * _SUB_SIDE)
+            if bx < g.blocks[0] and by < g.blocks[1] and bz < g.blocks[2]:
+                b = (bz * g.blocks[1] + by) * g.blocks[0] + bx
+                state = proven_side(sub_bounds(ctx, r, sb), iso)
+                flags[b] = wp.where(state == 0, 1, 0)
+                block_states[b] = state
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def classify_subblock_rows_kernel(
+        m: ModelArrays,
+        g: Grid,
+        iso: float,
+        active: wp.array(dtype=wp.int32),
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        states: wp.array(dtype=wp.int32),
+    ):
+        """The states of ``classify_subblocks_kernel``, one thread per active
+        block: one tree walk bounds all 64 sub-block balls (bounds rows), so
+        the traversal and the wide operators' grid walks are shared."""
+        t = wp.tid() + offset
+        a = first_block + t
+        c = block_coords(g, active[a])
+        ctx = block_rows(rows, t, result_slot, g.origin, g.h, wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK))
+        r = block_bounds(m, ctx)
+        for sb in range(_SUBS):
+            states[a * _SUBS + sb] = proven_side(sub_bounds(ctx, r, sb), iso)
 
     @wp.kernel(enable_backward=False, module="unique")
     def sample_blocks_kernel(
@@ -614,7 +674,9 @@ def make_kernels():
 
     return {
         "classify": classify_blocks_kernel,
+        "classify_rows": classify_block_rows_kernel,
         "classify_sub": classify_subblocks_kernel,
+        "classify_sub_rows": classify_subblock_rows_kernel,
         "sample": sample_blocks_kernel,
         "sample_rows": sample_rows_kernel,
         "count": count_kernel,

@@ -169,7 +169,15 @@ def polygonize(
     # 1. block rejection by interval bounds
     flags = wp.empty(n_blocks, dtype=wp.int32, device=dev)
     block_states = wp.empty(n_blocks, dtype=wp.int32, device=dev)
-    launch(kernels["classify"], n_blocks, [m, g, float(iso)], [flags, block_states], dev, threads)
+    if _use_rows(dev):
+        # one thread per 4^3 blocks bounds them all in one tree walk
+        supers = -(-blocks // _kernels.SUB_SIDE)
+        n_supers = int(np.prod(supers))
+        check_memory("polygonize", "block bounds", block_chunk(lm, n_supers)[1], limit)
+        inputs = [m, g, float(iso), wp.vec3i(*supers.astype(np.int32))]
+        launch_blocks(kernels["classify_rows"], n_supers, inputs, [flags, block_states], lm, dev, threads)
+    else:
+        launch(kernels["classify"], n_blocks, [m, g, float(iso)], [flags, block_states], dev, threads)
     active = compact(flags, dev, threads)
     n_active = active.shape[0]
     block_map = wp.full(n_blocks, -1, dtype=wp.int32, device=dev)
@@ -183,7 +191,12 @@ def polygonize(
     check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 7, limit)
     n_subs = n_active * _kernels.SUB_SIDE**3
     states = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
+    if _use_rows(dev):
+        # one thread per block bounds its 64 sub-blocks in one tree walk
+        check_memory("polygonize", "sub-block bounds", block_chunk(lm, n_active)[1], limit)
+        launch_blocks(kernels["classify_sub_rows"], n_active, [m, g, float(iso), active], [states], lm, dev, threads)
+    else:
+        launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
     lap("classify_subblocks")
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
     evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
