@@ -9,6 +9,7 @@ input right after its arrays and adds it to ``wp.tid()``.
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import warp as wp
@@ -20,6 +21,8 @@ __all__ = ["launch", "thread_count", "set_thread_count"]
 _threads: int | None = None
 _pool: ThreadPoolExecutor | None = None
 _MIN_CHUNK = 1024
+#: pieces per thread of a CPU launch, taken dynamically (load balance)
+_PIECES = 8
 
 
 def thread_count() -> int:
@@ -53,24 +56,39 @@ def _executor(n: int) -> ThreadPoolExecutor:
     return _pool
 
 
-def launch(kernel, dim: int, before: list, after: list, device, threads: int | None = None) -> None:
+def launch(
+    kernel, dim: int, before: list, after: list, device, threads: int | None = None, min_chunk: int = _MIN_CHUNK
+) -> None:
     """Launch ``kernel`` over ``dim`` items as ``kernel(*before, offset, *after)``.
 
-    On the CPU the range is split into ``threads`` contiguous chunks launched
-    concurrently; on CUDA it is one launch. Results do not depend on the
-    split (each item is computed by the same code independently).
+    On the CPU the range is cut into up to :data:`_PIECES` contiguous pieces
+    per thread (each at least ``min_chunk`` items: pass a small one when
+    items are heavy, e.g. one per block of 512 points) and ``threads``
+    workers take pieces as they finish the last one, so a range whose cost is
+    uneven (surface in one half, empty space in the other) still keeps every
+    core busy; on CUDA it is one launch. Results do not depend on the split
+    (each item is computed by the same code independently).
     """
     if dim <= 0:
         return
     device = wp.get_device(device)
     n = threads if threads is not None else thread_count()
-    if device.is_cuda or n <= 1 or dim < 2 * _MIN_CHUNK:
+    min_chunk = max(1, int(min_chunk))
+    if device.is_cuda or n <= 1 or dim < 2 * min_chunk:
         wp.launch(kernel, dim=dim, inputs=[*before, 0, *after], device=device)
         return
-    n = min(n, dim // _MIN_CHUNK)
-    bounds = [dim * k // n for k in range(n + 1)]
+    pieces = min(n * _PIECES, dim // min_chunk)
+    n = min(n, pieces)
+    bounds = [dim * k // pieces for k in range(pieces + 1)]
+    queue = iter(range(pieces))
+    lock = threading.Lock()
 
-    def run(k):
-        wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[*before, bounds[k], *after], device=device)
+    def work(_):
+        while True:
+            with lock:
+                k = next(queue, None)
+            if k is None:
+                return
+            wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[*before, bounds[k], *after], device=device)
 
-    list(_executor(n).map(run, range(n)))
+    list(_executor(n).map(work, range(n)))

@@ -250,7 +250,8 @@ def launch_blocks(kernel, n_blocks: int, inputs: list, outputs: list, lm: Linear
     chunk, nbytes = block_chunk(lm, n_blocks)
     rows = wp.zeros(nbytes // 4, dtype=wp.float32, device=device)
     for first in range(0, n_blocks, chunk):
-        launch(kernel, min(chunk, n_blocks - first), [*inputs, first, rows, lm.registers], outputs, device, threads)
+        count = min(chunk, n_blocks - first)
+        launch(kernel, count, [*inputs, first, rows, lm.registers], outputs, device, threads, min_chunk=2)
 
 
 def grid_field(model, origin, cellsize: float, shape, *, device=None, threads: int | None = None) -> np.ndarray:
