@@ -1244,6 +1244,31 @@ def cubic_guess(fm: float, f0: float, f1: float, f2: float):
     return lin
 
 
+@wp.func
+def hermite_root(t: float, f: float, slope: float, ta: float, fa: float, tb: float, fb: float, start: float):
+    """Root near ``start`` of the cubic with value ``f`` and slope ``slope`` at
+    ``t`` through (ta, fa) and (tb, fb) (ta < t < tb), by Newton steps on the
+    cubic; -1 when it is degenerate. Uses the bracket's values as well as the
+    derivative, so it converges in fewer field evaluations than Newton's
+    tangent where F bends within a cell (SPEC 2.1 step 4)."""
+    sa = ta - t
+    sb = tb - t
+    ra = fa - f - slope * sa
+    rb = fb - f - slope * sb
+    det = sa * sa * sb * sb * (sb - sa)
+    if not (wp.abs(det) > 1.0e-30):
+        return -1.0
+    c2 = (ra * sb * sb * sb - rb * sa * sa * sa) / det
+    c3 = (sa * sa * rb - sb * sb * ra) / det
+    x = start - t
+    for _k in range(5):
+        d = slope + x * (2.0 * c2 + 3.0 * c3 * x)
+        if d == 0.0:
+            return -1.0
+        x = x - (f + x * (slope + x * (c2 + x * c3))) / d
+    return t + x
+
+
 def make_segment_root(evaluate):
     """A root search on segments, for polygonization and isosurface stuffing.
 
@@ -1252,10 +1277,13 @@ def make_segment_root(evaluate):
     max_iterations) -> (vec7 r, t, evaluations)`` starts at ``t0`` (e.g.
     :func:`cubic_guess`; outside (0, 1): the linear guess) and finds ``t`` in [0, 1] with
     ``|F(p0 + t step) - iso| <= tolerance``, given the values ``f0``, ``f1``
-    (minus ``iso``, of opposite sides) at the ends: Newton along the segment
-    with the analytic derivative, safeguarded by the bracket (Press et al.'s
-    rtsafe: a step that leaves the bracket or fails to halve the previous one
-    falls back to bisection). ``r`` is the evaluation at ``t`` (value,
+    (minus ``iso``, of opposite sides) at the ends: a Newton-type search along
+    the segment with the analytic derivative, each step going to the root of
+    the cubic that has F's value and slope at ``t`` and passes through the
+    bracket's end values (:func:`hermite_root`; Newton's tangent step when
+    that cubic has no root in the bracket), safeguarded by the bracket
+    (Press et al.'s rtsafe: a step that leaves the bracket or fails to halve
+    the previous one falls back to bisection). ``r`` is the evaluation at ``t`` (value,
     gradient, colour); if ``max_iterations`` run out, the best point found.
     """
 
@@ -1274,6 +1302,7 @@ def make_segment_root(evaluate):
         ta = float(0.0)
         tb = float(1.0)
         fa = f0
+        fb = f1
         t = fa / (fa - f1)
         if t0 > 0.0 and t0 < 1.0:
             t = t0
@@ -1292,15 +1321,24 @@ def make_segment_root(evaluate):
                 best_t = t
             if wp.abs(ft) <= tolerance:
                 break
+            pa = ta
+            pfa = fa
+            pb = tb
+            pfb = fb
             if (ft >= 0.0) == (fa >= 0.0):
                 ta = t
                 fa = ft
             else:
                 tb = t
+                fb = ft
             slope = r[1] * step[0] + r[2] * step[1] + r[3] * step[2]
             tn = float(-1.0)
             if slope != 0.0:
                 tn = t - ft / slope
+            # the cubic through the bracket's ends with the tangent at t, from the Newton point
+            th = hermite_root(t, ft, slope, pa, pfa, pb, pfb, wp.clamp(wp.where(tn > 0.0, tn, 0.5 * (ta + tb)), ta, tb))
+            if th > ta and th < tb:
+                tn = th
             if tn > ta and tn < tb and wp.abs(tn - t) < 0.5 * dx_old:
                 dx_old = wp.abs(tn - t)
                 t = tn
