@@ -250,3 +250,43 @@ def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
     np.testing.assert_array_equal(a.faces, b.faces)
     assert np.abs(a.vertices - b.vertices).max() < 1e-3 * h
     assert_closed_outward(b, model)
+
+
+def test_zero_area_triangles_are_dropped_after_welding_their_coincident_corners(device):
+    """An octahedron whose top vertex is split into two coincident copies, the
+    gap closed by two zero-area triangles (what the grid pipeline makes where
+    the surface passes through a grid vertex): dropping those triangles alone
+    would open a hole; welding the copies first gives back the closed
+    octahedron, without the unused copy."""
+    import importlib
+
+    import warp as wp
+
+    pipeline = importlib.import_module("warpblob.polygonize._pipeline")
+    # 0a = 0 and 0b = 6 both at the top; ring 1..4; bottom 5
+    v = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, -1], [0, 0, 1]], np.float32)
+    faces = np.array(
+        [[0, 1, 2], [0, 2, 3], [6, 3, 4], [6, 4, 1], [0, 3, 6], [6, 1, 0],  # top fan, split, and the two slivers
+         [5, 2, 1], [5, 3, 2], [5, 4, 3], [5, 1, 4]],
+        np.int32,
+    )  # fmt: skip
+    split = wb.SurfaceMesh(v, faces, v, v)
+    assert split.is_closed_manifold()
+    arrays = [wp.array(a, dtype=wp.vec3, device=device) for a in (v, v, 0.5 * v)]
+    tris = wp.array(faces, dtype=wp.vec3i, device=device)
+    tris, pos, nrm, col, welded = pipeline._drop_degenerate(tris, *arrays, 0.1, device)
+    mesh = wb.SurfaceMesh(pos.numpy(), tris.numpy().reshape(-1, 3), nrm.numpy(), col.numpy())
+    assert welded == 1
+    assert mesh.face_count == 8 and mesh.vertex_count == 6
+    assert mesh.is_closed_manifold() and mesh.volume() > 0.0
+    np.testing.assert_allclose(mesh.volume(), 4.0 / 3.0, rtol=1e-6)  # the octahedron
+    np.testing.assert_array_equal(mesh.normals, mesh.vertices)  # vertex data moved with the vertices
+    np.testing.assert_array_equal(mesh.colors, 0.5 * mesh.vertices)
+
+
+def test_towers_at_h_004_is_closed():
+    """The reference model where the surface passes exactly through grid
+    vertices (coincident vertices, zero-area triangles) at h = 0.04."""
+    mesh = wb.polygonize(wb.scenes.towers(), cellsize=0.04)
+    assert mesh.stats["welded_vertices"] > 0, "test set-up: no coincident vertices at this cellsize"
+    assert mesh.is_closed_manifold()

@@ -1,15 +1,63 @@
-"""Host helpers shared by the kernel pipelines: memory checks, prefix sums, compaction."""
+"""Host helpers shared by the kernel pipelines: stage clocks, memory checks, prefix sums, compaction."""
 
 from __future__ import annotations
 
 import os
+import time
 
 import warp as wp
 
 from ._errors import ResourceError
 from ._parallel import launch
 
-__all__ = ["available_memory", "check_memory", "scan", "compact"]
+__all__ = ["StageClock", "available_memory", "check_memory", "scan", "compact"]
+
+#: grid cells from which ``progress=None`` shows a bar (a job of seconds on 2 CPU cores)
+PROGRESS_CELLS = 8_000_000
+
+
+class StageClock:
+    """Seconds per pipeline stage (the device is synchronized at each lap),
+    with a stage progress bar on a terminal.
+
+    Args:
+        device: Warp device the stages run on.
+        desc: the bar's label (the pipeline's name).
+        stages: number of laps a full run takes.
+        show: whether to show the bar (only ever on a terminal).
+    """
+
+    def __init__(self, device, desc: str, stages: int, show: bool = False):
+        self.device = device
+        self.seconds: dict[str, float] = {}
+        self._t0 = time.perf_counter()
+        self._bar = None
+        if show:
+            from ._progress import progress
+
+            bar = progress(range(stages), desc=desc, total=stages)
+            self._bar = bar if hasattr(bar, "update") else None
+
+    def lap(self, name: str) -> None:
+        """Close stage ``name``: wait for its kernels and record its seconds."""
+        wp.synchronize_device(self.device)
+        now = time.perf_counter()
+        self.seconds[name] = now - self._t0
+        self._t0 = now
+        if self._bar is not None:
+            self._bar.set_postfix_str(name, refresh=False)
+            self._bar.update(1)
+            if self._bar.n >= self._bar.total:
+                self.close()
+
+    def __del__(self):
+        self.close()
+
+    def close(self) -> None:
+        """Remove the bar (also done at the last stage, and when the clock is dropped)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
 
 def available_memory(device) -> int:

@@ -173,7 +173,7 @@ def cmd_polygonize(args) -> int:
     model = _load(args.scene)
     if not args.out.lower().endswith(_USD_SUFFIXES[:3]):
         raise WarpblobError(f"--out must be a .usda, .usdc or .usd file, got {args.out!r}")
-    mesh = polygonize(model, cellsize=args.cellsize, device=args.device)
+    mesh = polygonize(model, cellsize=args.cellsize, device=args.device, progress=True)
     try:
         save_mesh(mesh, args.out)
     except (OSError, ValueError) as exc:
@@ -197,7 +197,7 @@ def cmd_tetrahedralize(args) -> int:
     model = _load(args.scene)
     if not args.out.lower().endswith(_USD_SUFFIXES[:3]):
         raise WarpblobError(f"--out must be a .usda, .usdc or .usd file, got {args.out!r}")
-    mesh = tetrahedralize(model, cellsize=args.cellsize, interior_cellsize=args.interior_cellsize, device=args.device)
+    mesh = tetrahedralize(model, cellsize=args.cellsize, interior_cellsize=args.interior_cellsize, device=args.device, progress=True)
     try:
         mesh.to_usd(args.out)
     except (OSError, ValueError) as exc:

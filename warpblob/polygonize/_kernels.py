@@ -666,11 +666,13 @@ def make_kernels():
         offset: int,
         keep: wp.array(dtype=wp.int32),
     ):
+        """Keep a triangle with three distinct corners and a nonzero area."""
         tid = wp.tid() + offset
         t = triangles[tid]
         p0 = positions[t[0]]
         n = wp.cross(positions[t[1]] - p0, positions[t[2]] - p0)
-        keep[tid] = wp.where(wp.length_sq(n) > 0.0, 1, 0)
+        distinct = t[0] != t[1] and t[1] != t[2] and t[0] != t[2]
+        keep[tid] = wp.where(distinct and wp.length_sq(n) > 0.0, 1, 0)
 
     return {
         "classify": classify_blocks_kernel,
@@ -704,3 +706,55 @@ def compact_triangles_kernel(
 def block_map_kernel(active: wp.array(dtype=wp.int32), offset: int, block_map: wp.array(dtype=wp.int32)):
     tid = wp.tid() + offset
     block_map[active[tid]] = tid
+
+
+@wp.kernel(enable_backward=False)
+def dropped_kernel(keep: wp.array(dtype=wp.int32), offset: int, flags: wp.array(dtype=wp.int32)):
+    tid = wp.tid() + offset
+    flags[tid] = 1 - keep[tid]
+
+
+@wp.kernel(enable_backward=False)
+def weld_triangles_kernel(
+    triangles: wp.array(dtype=wp.vec3i), weld: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
+):
+    """Replace each corner by its welded vertex."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    out[tid] = wp.vec3i(weld[t[0]], weld[t[1]], weld[t[2]])
+
+
+@wp.kernel(enable_backward=False)
+def used_vertices_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, used: wp.array(dtype=wp.int32)):
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    used[t[0]] = 1
+    used[t[1]] = 1
+    used[t[2]] = 1
+
+
+@wp.kernel(enable_backward=False)
+def renumber_kernel(
+    triangles: wp.array(dtype=wp.vec3i), new_index: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
+):
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    out[tid] = wp.vec3i(new_index[t[0]], new_index[t[1]], new_index[t[2]])
+
+
+@wp.kernel(enable_backward=False)
+def gather_vertices_kernel(
+    kept: wp.array(dtype=wp.int32),
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    colors: wp.array(dtype=wp.vec3),
+    offset: int,
+    out_positions: wp.array(dtype=wp.vec3),
+    out_normals: wp.array(dtype=wp.vec3),
+    out_colors: wp.array(dtype=wp.vec3),
+):
+    tid = wp.tid() + offset
+    v = kept[tid]
+    out_positions[tid] = positions[v]
+    out_normals[tid] = normals[v]
+    out_colors[tid] = colors[v]

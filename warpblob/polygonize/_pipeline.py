@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import warp as wp
 
 from .._errors import ResourceError, WarpblobError
-from .._stages import available_memory, check_memory, compact, scan
+from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
+from .._stages import compact_kernel
 from .._linearize import linearize
 from .._parallel import launch
 from ..field._engine import block_chunk, launch_blocks, model_arrays, resolve_device
@@ -23,6 +22,8 @@ _CACHE: dict = {}
 #: (array mode: the traversal cost is shared, best for CPU threads), "points"
 #: once per vertex (one GPU thread each), "auto" picks by device
 SAMPLING = "auto"
+#: corners of a zero-area triangle closer than WELD cells are welded
+WELD = 1.0e-4
 
 
 def _use_rows(device) -> bool:
@@ -85,6 +86,7 @@ def polygonize(
     tolerance: float = 1e-4,
     max_memory: int | None = None,
     threads: int | None = None,
+    progress: bool | None = None,
 ) -> SurfaceMesh:
     """Polygonize ``model`` into a closed, coloured, shared-vertex triangle mesh.
 
@@ -110,6 +112,8 @@ def polygonize(
         tolerance: largest ``|F(v) - iso|`` accepted for a vertex.
         max_memory: bytes the call may allocate (default: what is available).
         threads: CPU threads (default: all cores).
+        progress: show a bar of the stages on a terminal (``None``: for
+            grids of 8 million cells and more, jobs of seconds).
 
     Returns:
         :class:`~warpblob.mesh.SurfaceMesh`; ``stats`` holds
@@ -139,17 +143,7 @@ def polygonize(
     dev = resolve_device(device)
     lm = linearize(model)
     limit = available_memory(dev) if max_memory is None else int(max_memory)
-    seconds = {}
     stats = {"cellsize": h}
-    t0 = time.perf_counter()
-
-    def lap(name):
-        nonlocal t0
-        wp.synchronize_device(dev)
-        now = time.perf_counter()
-        seconds[name] = now - t0
-        t0 = now
-
     grid = _grid(lm, h, bounds)
     empty = SurfaceMesh(
         np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
@@ -159,6 +153,17 @@ def polygonize(
         return empty
     g, cells, blocks = grid
     n_blocks = int(np.prod(blocks))
+    show = bool(progress) or (progress is None and n_blocks * _kernels.CELLS >= PROGRESS_CELLS)
+    clock = StageClock(dev, "polygonize", 6, show=show)
+    try:
+        return _run(lm, g, n_blocks, blocks, dev, float(iso), float(tolerance), limit, threads, clock, stats)
+    finally:
+        clock.close()
+
+
+def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, stats) -> SurfaceMesh:
+    """The stages of :func:`polygonize` on grid ``g`` (arguments checked)."""
+    lap = clock.lap
     check_memory("polygonize", "block classification", n_blocks * 16, limit)
     if n_blocks > np.iinfo(np.int32).max // _kernels.CELLS:
         raise ResourceError(f"polygonize: {n_blocks} blocks exceed the int32 index range; use a larger cellsize")
@@ -269,14 +274,9 @@ def polygonize(
         dev,
         threads,
     )  # fmt: skip
-    # 6. drop zero-area triangles
-    keep = wp.empty(n_triangles, dtype=wp.int32, device=dev)
-    launch(kernels["degenerate"], n_triangles, [positions, triangles], [keep], dev, threads)
-    keep_offsets, n_kept = scan(keep)
-    if n_kept < n_triangles:
-        kept = wp.empty(n_kept, dtype=wp.vec3i, device=dev)
-        launch(_kernels.compact_triangles_kernel, n_triangles, [triangles, keep, keep_offsets], [kept], dev, threads)
-        triangles = kept
+    # 6. drop zero-area triangles, welding coincident corners first
+    triangles, positions, normals, colors, n_welded = _drop_degenerate(triangles, positions, normals, colors, g.h, dev, threads)
+    n_kept = triangles.shape[0]
     lap("faces")
 
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
@@ -288,15 +288,17 @@ def polygonize(
         centre_vertices=n_centres,
         triangles=n_kept,
         degenerate_removed=n_triangles - n_kept,
+        welded_vertices=n_welded,
         grid_evaluations=grid_evaluations,
         root_evaluations=root_steps,
         field_evaluations=field_evaluations,
         interval_evaluations=interval_evaluations,
         fvept=field_evaluations / max(n_kept, 1),
         fvept_with_intervals=(field_evaluations + interval_evaluations) / max(n_kept, 1),
-        seconds=seconds,
-        total_seconds=sum(seconds.values()),
+        seconds=clock.seconds,
+        total_seconds=sum(clock.seconds.values()),
     )
+    stats["vertices"] = positions.shape[0]
     return SurfaceMesh(
         positions.numpy().reshape(-1, 3),
         triangles.numpy().reshape(-1, 3).astype(np.int32),
@@ -304,3 +306,92 @@ def polygonize(
         colors.numpy().reshape(-1, 3),
         stats,
     )
+
+
+def _drop_degenerate(triangles, positions, normals, colors, h: float, device, threads=None):
+    """Remove zero-area triangles from a closed mesh and keep it closed.
+
+    Zero-area triangles appear where the surface passes through a grid
+    vertex: several edge vertices land on it and the triangles between them
+    collapse. Their coincident corners are welded first (:func:`_weld`), so
+    dropping them leaves no hole; vertices no triangle uses any more are
+    removed. Returns (triangles, positions, normals, colors, welded vertices).
+    The usual case, no zero-area triangle, costs one kernel and one scan."""
+    degenerate = _kernel_set()["degenerate"]
+    n = triangles.shape[0]
+    keep = wp.empty(n, dtype=wp.int32, device=device)
+    launch(degenerate, n, [positions, triangles], [keep], device, threads)
+    offsets, n_kept = scan(keep)
+    if n_kept == n:
+        return triangles, positions, normals, colors, 0
+    triangles, n_welded = _weld(triangles, keep, positions, h, device, threads)
+    launch(degenerate, n, [positions, triangles], [keep], device, threads)
+    offsets, n_kept = scan(keep)
+    kept = wp.empty(n_kept, dtype=wp.vec3i, device=device)
+    launch(_kernels.compact_triangles_kernel, n, [triangles, keep, offsets], [kept], device, threads)
+    return (*_drop_unused(kept, positions, normals, colors, device, threads), n_welded)
+
+
+def _weld(triangles, keep, positions, h: float, device, threads):
+    """Triangles with the coincident corners of the zero-area ones welded, and
+    how many vertices were welded away.
+
+    A zero-area triangle's edges shorter than ``WELD * h`` join their corners
+    (the surface passed through a grid vertex and several edge vertices landed
+    on it); each connected group becomes its lowest-numbered vertex. Only the
+    few zero-area triangles (``keep`` 0) are read back to the host; a zero-area
+    triangle without a short edge (three distinct collinear corners) is just
+    dropped."""
+    dropped = compact(_flags(_kernels.dropped_kernel, keep, device, threads), device, threads).numpy()
+    tris = triangles.numpy().reshape(-1, 3)[dropped]
+    p = positions.numpy().reshape(-1, 3).astype(np.float64)
+    a = tris.reshape(-1)
+    b = tris[:, [1, 2, 0]].reshape(-1)
+    short = np.linalg.norm(p[a] - p[b], axis=1) <= WELD * h
+    a, b = a[short], b[short]
+    if len(a) == 0:
+        return triangles, 0
+    # connected groups by label propagation (the graph has a handful of nodes)
+    nodes, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
+    ia, ib = inv[: len(a)], inv[len(a) :]
+    label = np.arange(len(nodes))
+    while True:
+        low = np.minimum(label[ia], label[ib])
+        new = label.copy()
+        np.minimum.at(new, ia, low)
+        np.minimum.at(new, ib, low)
+        new = new[new]
+        if np.array_equal(new, label):
+            break
+        label = new
+    weld = np.arange(positions.shape[0], dtype=np.int32)
+    weld[nodes] = nodes[label]
+    out = wp.empty_like(triangles)
+    launch(
+        _kernels.weld_triangles_kernel, triangles.shape[0], [triangles, wp.array(weld, dtype=wp.int32, device=device)],
+        [out], device, threads,
+    )  # fmt: skip
+    return out, int(np.count_nonzero(nodes[label] != nodes))
+
+
+def _flags(kernel, values, device, threads):
+    flags = wp.empty(values.shape[0], dtype=wp.int32, device=device)
+    launch(kernel, values.shape[0], [values], [flags], device, threads)
+    return flags
+
+
+def _drop_unused(triangles, positions, normals, colors, device, threads):
+    """Remove the vertices no triangle uses and renumber the triangles."""
+    n = positions.shape[0]
+    used = wp.zeros(n, dtype=wp.int32, device=device)
+    launch(_kernels.used_vertices_kernel, triangles.shape[0], [triangles], [used], device, threads)
+    new_index, n_used = scan(used)
+    if n_used == n:
+        return triangles, positions, normals, colors
+    kept = wp.empty(n_used, dtype=wp.int32, device=device)
+    launch(compact_kernel, n, [used, new_index], [kept], device, threads)
+    out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
+    launch(_kernels.gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads)
+    renumbered = wp.empty_like(triangles)
+    launch(_kernels.renumber_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
+    return (renumbered, *out)

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import warp as wp
 
 from .._errors import ResourceError, WarpblobError
 from .._linearize import linearize
 from .._parallel import launch
-from .._stages import available_memory, check_memory, compact, scan
+from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
 from ..field._engine import model_arrays, resolve_device
 from ..mesh._tetmesh import TetMesh
 from ..tree import ISO_VALUE
@@ -79,6 +77,7 @@ def tetrahedralize(
     alpha_short: float = ALPHA_SHORT,
     max_memory: int | None = None,
     threads: int | None = None,
+    progress: bool | None = None,
 ):
     """Fill ``model`` with tetrahedra by isosurface stuffing (Labelle & Shewchuk 2007).
 
@@ -101,6 +100,8 @@ def tetrahedralize(
             [10.7 deg, 164.8 deg].
         max_memory: bytes the call may allocate (default: what is available).
         threads: CPU threads (default: :func:`warpblob.thread_count`).
+        progress: show a bar of the stages on a terminal (``None``: for
+            lattices of 8 million cells and more, jobs of seconds).
 
     Returns:
         :class:`~warpblob.mesh.TetMesh` with positively oriented tets,
@@ -150,25 +151,15 @@ def tetrahedralize(
     lm = linearize(model)
     limit = available_memory(dev) if max_memory is None else int(max_memory)
     iso = float(ISO_VALUE)
-    seconds: dict = {}
     stats: dict = {
         "cellsize": h,
         "interior_cellsize": h * ratio if ratio else h,
         "alpha_long": a_long,
         "alpha_short": a_short,
     }
-    t0 = time.perf_counter()
-
-    def lap(name):
-        nonlocal t0
-        wp.synchronize_device(dev)
-        now = time.perf_counter()
-        seconds[name] = now - t0
-        t0 = now
-
     lo, hi = lm.bounds
     if np.any(lo > hi):
-        stats.update(tets=0, nodes=0, field_evaluations=0, seconds=seconds, total_seconds=0.0)
+        stats.update(tets=0, nodes=0, field_evaluations=0, seconds={}, total_seconds=0.0)
         return TetMesh(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.int32), np.zeros(0, np.int32), stats)
 
     # one empty cube of margin on every side: the outermost points see F = 0, so the
@@ -184,6 +175,9 @@ def tetrahedralize(
             f"tetrahedralize: {n_points} lattice points exceed the int32 index range; use a larger cellsize"
         )
     check_memory(_WHO, "lattice", n_points * 40 + n_subs * 16 + n_blocks * 4, limit)
+    show = bool(progress) or (progress is None and n_points >= PROGRESS_CELLS)
+    clock = StageClock(dev, "tetrahedralize", 7 if ratio else 6, show=show)
+    lap = clock.lap
     lat = _kernels.Lattice()
     lat.origin = wp.vec3(*(lo - h).astype(np.float32))
     lat.h = h
@@ -389,8 +383,8 @@ def tetrahedralize(
         warp_rounds=rounds,
         tets=n_raw,
         nodes=n_nodes,
-        seconds=seconds,
-        total_seconds=sum(seconds.values()),
+        seconds=clock.seconds,
+        total_seconds=sum(clock.seconds.values()),
     )
     node_array = nodes.numpy().reshape(-1, 3)
     tet_array = tets.numpy().reshape(-1, 4)
