@@ -715,13 +715,13 @@ def dropped_kernel(keep: wp.array(dtype=wp.int32), offset: int, flags: wp.array(
 
 
 @wp.kernel(enable_backward=False)
-def weld_triangles_kernel(
-    triangles: wp.array(dtype=wp.vec3i), weld: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
+def remap_triangles_kernel(
+    triangles: wp.array(dtype=wp.vec3i), index: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
 ):
-    """Replace each corner by its welded vertex."""
+    """Replace each corner ``v`` by ``index[v]`` (welding, renumbering)."""
     tid = wp.tid() + offset
     t = triangles[tid]
-    out[tid] = wp.vec3i(weld[t[0]], weld[t[1]], weld[t[2]])
+    out[tid] = wp.vec3i(index[t[0]], index[t[1]], index[t[2]])
 
 
 @wp.kernel(enable_backward=False)
@@ -731,15 +731,6 @@ def used_vertices_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, used:
     used[t[0]] = 1
     used[t[1]] = 1
     used[t[2]] = 1
-
-
-@wp.kernel(enable_backward=False)
-def renumber_kernel(
-    triangles: wp.array(dtype=wp.vec3i), new_index: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
-):
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    out[tid] = wp.vec3i(new_index[t[0]], new_index[t[1]], new_index[t[2]])
 
 
 @wp.kernel(enable_backward=False)

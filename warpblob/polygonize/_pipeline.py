@@ -368,7 +368,7 @@ def _weld(triangles, keep, positions, h: float, device, threads):
     weld[nodes] = nodes[label]
     out = wp.empty_like(triangles)
     launch(
-        _kernels.weld_triangles_kernel, triangles.shape[0], [triangles, wp.array(weld, dtype=wp.int32, device=device)],
+        _kernels.remap_triangles_kernel, triangles.shape[0], [triangles, wp.array(weld, dtype=wp.int32, device=device)],
         [out], device, threads,
     )  # fmt: skip
     return out, int(np.count_nonzero(nodes[label] != nodes))
@@ -393,5 +393,5 @@ def _drop_unused(triangles, positions, normals, colors, device, threads):
     out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
     launch(_kernels.gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads)
     renumbered = wp.empty_like(triangles)
-    launch(_kernels.renumber_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
+    launch(_kernels.remap_triangles_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
     return (renumbered, *out)
