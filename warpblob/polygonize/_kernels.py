@@ -501,16 +501,17 @@ def make_kernels():
         return vertex_offsets[o] + (below & 1) + ((below >> 1) & 1)
 
     @wp.func
-    def smallest_angle(p0: wp.vec3, p1: wp.vec3, p2: wp.vec3):
-        """The smallest interior angle of a triangle, radians."""
+    def smallest_angle_cosine(p0: wp.vec3, p1: wp.vec3, p2: wp.vec3):
+        """The cosine of a triangle's smallest interior angle (the largest of
+        its three cosines): comparing these orders triangles as their
+        smallest angles do, without an arccosine."""
         e0 = wp.normalize(p1 - p0)
         e1 = wp.normalize(p2 - p1)
         e2 = wp.normalize(p0 - p2)
         c0 = -wp.dot(e2, e0)
         c1 = -wp.dot(e0, e1)
         c2 = -wp.dot(e1, e2)
-        # the smallest angle has the largest cosine
-        return wp.acos(wp.clamp(wp.max(wp.max(c0, c1), c2), -1.0, 1.0))
+        return wp.clamp(wp.max(wp.max(c0, c1), c2), -1.0, 1.0)
 
     @wp.func
     def loop_ids(
@@ -641,17 +642,18 @@ def make_kernels():
                 centre += 1
             else:
                 # fan from the allowed apex that maximizes the smallest angle
+                # (minimizes the largest smallest-angle cosine)
                 apex = int(-1)
-                best = float(-1.0)
+                best = float(2.0)
                 for s in range(n):
                     if (apexes >> s) & 1 != 0:
-                        worst = float(10.0)
+                        worst = float(-2.0)
                         for t in range(1, n - 1):
-                            ang = smallest_angle(
+                            c = smallest_angle_cosine(
                                 positions[ids[s]], positions[ids[(s + t) % n]], positions[ids[(s + t + 1) % n]]
                             )
-                            worst = wp.min(worst, ang)
-                        if worst > best or apex < 0:
+                            worst = wp.max(worst, c)
+                        if worst < best or apex < 0:
                             best = worst
                             apex = s
                 for t in range(1, n - 1):
