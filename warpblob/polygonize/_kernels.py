@@ -372,23 +372,13 @@ def make_kernels():
         gx = c[0] * _BLOCK + i
         gy = c[1] * _BLOCK + j
         gz = c[2] * _BLOCK + k
-        s0 = inside(sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states), iso)
         # crossed edges owned by vertex (i, j, k): +x, +y, +z, inside the grid
         mask = int(0)
-        if gx <= g.cells[0] and gy <= g.cells[1] and gz <= g.cells[2]:
-            if gx < g.cells[0] and inside(sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states), iso) != s0:
-                mask = mask | 1
-            if gy < g.cells[1] and inside(sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states), iso) != s0:
-                mask = mask | 2
-            if gz < g.cells[2] and inside(sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states), iso) != s0:
-                mask = mask | 4
-        edge_masks[tid] = mask
-        vertex_counts[tid] = (mask & 1) + ((mask >> 1) & 1) + ((mask >> 2) & 1)
-        # cell configuration and ambiguous-face resolution
         entry = int(0)
         count = int(0)
         centres = int(0)
         if gx < g.cells[0] and gy < g.cells[1] and gz < g.cells[2]:
+            # a cell of the grid: its corners give the owned edges (corner 0 to 1, 2, 4) and its configuration
             vals = vec8()
             config = int(0)
             for n in range(8):
@@ -396,6 +386,8 @@ def make_kernels():
                 vals[n] = v
                 if v >= 0.0:
                     config = config | (1 << n)
+            b0 = config & 1
+            mask = (((config >> 1) & 1) ^ b0) | ((((config >> 2) & 1) ^ b0) << 1) | ((((config >> 4) & 1) ^ b0) << 2)
             bits = int(0)
             for f in range(6):
                 q = faces[f]
@@ -421,6 +413,17 @@ def make_kernels():
                 else:
                     count += n
                     centres += 1
+        elif gx <= g.cells[0] and gy <= g.cells[1] and gz <= g.cells[2]:
+            # a vertex on the grid's upper faces: its edges along them
+            s0 = inside(sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states), iso)
+            if gx < g.cells[0] and inside(sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states), iso) != s0:
+                mask = mask | 1
+            if gy < g.cells[1] and inside(sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states), iso) != s0:
+                mask = mask | 2
+            if gz < g.cells[2] and inside(sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states), iso) != s0:
+                mask = mask | 4
+        edge_masks[tid] = mask
+        vertex_counts[tid] = (mask & 1) + ((mask >> 1) & 1) + ((mask >> 2) & 1)
         entries[tid] = entry
         triangle_counts[tid] = count
         centre_counts[tid] = centres
