@@ -105,7 +105,13 @@ def test_polygonize_writes_a_usd_mesh(tmp_path):
     mesh = wb.usd.load_mesh(out)
     direct = wb.polygonize(wb.scenes.tumor(), cellsize=0.1)
     assert mesh.face_count == direct.face_count and mesh.is_closed_manifold()
+    np.testing.assert_allclose(mesh.vertices, direct.vertices, atol=1e-6)
     assert (tmp_path / "t.png").stat().st_size > 5000
+    # --no-relax keeps the vertices on their grid edges
+    r = run_cli("polygonize", "tumor", "--cellsize", "0.1", "--out", str(out), "--no-relax")
+    assert r.returncode == 0, r.stderr
+    plain = wb.polygonize(wb.scenes.tumor(), cellsize=0.1, relax=False)
+    np.testing.assert_allclose(wb.usd.load_mesh(out).vertices, plain.vertices, atol=1e-6)
 
 
 @pytest.mark.parametrize(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import Any
 
 import warp as wp
 
@@ -92,6 +93,17 @@ def scan(counts: wp.array) -> tuple[wp.array, int]:
     wp.utils.array_scan(counts, offsets, inclusive=False)
     # host sync: the total sizes the next stage's allocation
     return offsets, int(offsets[-1:].numpy()[0]) + int(counts[-1:].numpy()[0])
+
+
+@wp.kernel(enable_backward=False)
+def mark_heads_kernel(keys: wp.array(dtype=Any), offset: int, heads: wp.array(dtype=wp.int32)):
+    """1 where a run of equal sorted keys starts (any key type)."""
+    i = wp.tid() + offset
+    head = int(1)
+    if i > 0:
+        if keys[i] == keys[i - 1]:
+            head = 0
+    heads[i] = head
 
 
 @wp.kernel(enable_backward=False)

@@ -173,7 +173,7 @@ def cmd_polygonize(args) -> int:
     model = _load(args.scene)
     if not args.out.lower().endswith(_USD_SUFFIXES[:3]):
         raise WarpblobError(f"--out must be a .usda, .usdc or .usd file, got {args.out!r}")
-    mesh = polygonize(model, cellsize=args.cellsize, device=args.device, progress=True)
+    mesh = polygonize(model, cellsize=args.cellsize, device=args.device, progress=True, relax=args.relax)
     try:
         save_mesh(mesh, args.out)
     except (OSError, ValueError) as exc:
@@ -238,6 +238,10 @@ def _parser() -> argparse.ArgumentParser:
     pg.add_argument("--cellsize", type=float, required=True, help="grid cell size, model units")
     pg.add_argument("--out", required=True, help="output .usda/.usdc/.usd file")
     pg.add_argument("--png", default=None, help="also render a picture to this PNG file")
+    pg.add_argument(
+        "--no-relax", dest="relax", action="store_false",
+        help="keep every vertex on its grid edge (skip the relaxation of triangles under 10 degrees)",
+    )  # fmt: skip
     pg.set_defaults(func=cmd_polygonize)
 
     tt = sub.add_parser("tetrahedralize", help="fill a scene with tetrahedra (isosurface stuffing) into a UsdGeom.TetMesh")

@@ -44,6 +44,7 @@ import warp as wp
 
 from .._errors import WarpblobError
 from .._parallel import launch
+from .._stages import mark_heads_kernel
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
 __all__ = [
@@ -152,17 +153,6 @@ def emit_edge_keys_kernel(
     for j in range(6):
         keys[6 * t + j] = edge_key(tets[t][TET_EDGES_WP[j, 0]], tets[t][TET_EDGES_WP[j, 1]])
         occurrences[6 * t + j] = 6 * t + j
-
-
-@wp.kernel(enable_backward=False)
-def mark_heads_kernel(keys: wp.array(dtype=wp.int64), offset: int, heads: wp.array(dtype=wp.int32)):
-    """1 where a run of equal sorted keys starts."""
-    i = wp.tid() + offset
-    head = int(1)
-    if i > 0:
-        if keys[i] == keys[i - 1]:
-            head = 0
-    heads[i] = head
 
 
 @wp.kernel(enable_backward=False)

@@ -1,4 +1,34 @@
-"""Polygonization: BlobTree to watertight, coloured, shared-vertex triangle mesh."""
+"""Polygonization: BlobTree to watertight, coloured, shared-vertex triangle mesh.
+
+The pipeline is the GPU design of the thesis (SPEC 2.1) on a block-sparse
+grid, each stage a Warp kernel with at most one host sync:
+
+1. Empty-space rejection by interval bounds of the field over the balls of
+   8^3-cell blocks, then of their 2^3-cell sub-blocks. Exact for BlobTree
+   fields: a primitive's distance is 1-Lipschitz in its local frame and
+   every operator is monotone in its operands, so a ball whose bound
+   excludes the iso-value holds no surface; thin plates, tiny blobs and a
+   Difference's inner walls are never dropped (warps and sketched
+   primitives bound as unknown).
+2. Samples at the vertices next to undecided sub-blocks (array mode on the
+   CPU: one tree walk per block).
+3. Crossed edges and cell configurations, prefix sums (``wp.utils.array_scan``).
+4. One vertex per crossed edge, on the surface to ``|F - iso| <= 1e-4``:
+   a safeguarded Newton search (Press et al., *Numerical Recipes*, rtsafe)
+   whose steps take the root of the cubic Hermite interpolant through the
+   bracket, started from the cubic through four samples.
+5. Faces from a generated loop table, ambiguous faces resolved by the
+   asymptotic decider (Nielson & Hamann, *The asymptotic decider*, IEEE
+   Visualization 1991), loops fanned from the apex that maximizes the
+   smallest angle; zero-area triangles dropped after welding their
+   coincident corners, so the mesh stays closed.
+6. Tangential relaxation of the vertices of triangles under 10 degrees,
+   re-projected onto the surface by Newton steps along the gradient (the
+   projection of Hartmann, *A marching method for the triangulation of
+   surfaces*, CAGD 1998), undone where it would turn a triangle over.
+
+Marching cubes: Lorensen & Cline, SIGGRAPH 1987. See docs/polygonize.md.
+"""
 
 from ._pipeline import available_memory, polygonize
 

@@ -170,6 +170,20 @@ def store_vertex(
 
 
 @wp.func
+def smallest_angle_cosine(p0: wp.vec3, p1: wp.vec3, p2: wp.vec3):
+    """The cosine of a triangle's smallest interior angle (the largest of
+    its three cosines): comparing these orders triangles as their
+    smallest angles do, without an arccosine."""
+    e0 = wp.normalize(p1 - p0)
+    e1 = wp.normalize(p2 - p1)
+    e2 = wp.normalize(p0 - p2)
+    c0 = -wp.dot(e2, e0)
+    c1 = -wp.dot(e0, e1)
+    c2 = -wp.dot(e1, e2)
+    return wp.clamp(wp.max(wp.max(c0, c1), c2), -1.0, 1.0)
+
+
+@wp.func
 def inside(v: float, iso: float):
     return v >= iso
 
@@ -504,19 +518,6 @@ def make_kernels():
         return vertex_offsets[o] + (below & 1) + ((below >> 1) & 1)
 
     @wp.func
-    def smallest_angle_cosine(p0: wp.vec3, p1: wp.vec3, p2: wp.vec3):
-        """The cosine of a triangle's smallest interior angle (the largest of
-        its three cosines): comparing these orders triangles as their
-        smallest angles do, without an arccosine."""
-        e0 = wp.normalize(p1 - p0)
-        e1 = wp.normalize(p2 - p1)
-        e2 = wp.normalize(p0 - p2)
-        c0 = -wp.dot(e2, e0)
-        c1 = -wp.dot(e0, e1)
-        c2 = -wp.dot(e1, e2)
-        return wp.clamp(wp.max(wp.max(c0, c1), c2), -1.0, 1.0)
-
-    @wp.func
     def loop_ids(
         g: Grid,
         b: wp.vec3i,
@@ -665,6 +666,67 @@ def make_kernels():
             first += n
 
     @wp.kernel(enable_backward=False, module="unique")
+    def relax_kernel(
+        m: ModelArrays,
+        iso: float,
+        tolerance: float,
+        amount: float,
+        reach: float,
+        positions: wp.array(dtype=wp.vec3),
+        normals: wp.array(dtype=wp.vec3),
+        triangles: wp.array(dtype=wp.vec3i),
+        corner_vertex: wp.array(dtype=wp.int32),
+        corner_triangle: wp.array(dtype=wp.int32),
+        starts: wp.array(dtype=wp.int32),
+        n_corners: int,
+        offset: int,
+        new_positions: wp.array(dtype=wp.vec3),
+        new_normals: wp.array(dtype=wp.vec3),
+        new_colors: wp.array(dtype=wp.vec3),
+        moved: wp.array(dtype=wp.int32),
+        evaluations: wp.array(dtype=wp.int32),
+    ):
+        """Move one vertex of a skinny triangle ``amount`` of the way to the
+        centroid of its neighbours, within its tangent plane, then back onto
+        the surface by Newton steps along the gradient until ``|F - iso| <=
+        tolerance`` (the vertex stays where it was if they do not get there,
+        or wander farther than ``reach``). Its corners are
+        ``corner_triangle[starts[tid] : next start]``, sorted by vertex."""
+        tid = wp.tid() + offset
+        first = starts[tid]
+        last = n_corners
+        if tid + 1 < starts.shape[0]:
+            last = starts[tid + 1]
+        v = corner_vertex[first]
+        x0 = positions[v]
+        acc = wp.vec3(0.0)
+        for q in range(first, last):
+            t = triangles[corner_triangle[q]]
+            acc = acc + positions[t[0]] + positions[t[1]] + positions[t[2]] - x0
+        centroid = acc / (2.0 * float(last - first))
+        n = normals[v]
+        d = centroid - x0
+        x = x0 + amount * (d - wp.dot(d, n) * n)
+        count = int(0)
+        for _it in range(8):
+            r = value(m, x, 0.0)
+            count += 1
+            f = r[0] - iso
+            g = wp.vec3(r[1], r[2], r[3])
+            if wp.abs(f) <= tolerance:
+                if wp.length(x - x0) <= reach:
+                    new_positions[v] = x
+                    new_normals[v] = -wp.normalize(g)
+                    new_colors[v] = wp.vec3(r[4], r[5], r[6])
+                    moved[v] = 1
+                break
+            gg = wp.dot(g, g)
+            if gg == 0.0:
+                break
+            x = x - (f / gg) * g
+        evaluations[tid] = count
+
+    @wp.kernel(enable_backward=False, module="unique")
     def degenerate_kernel(
         positions: wp.array(dtype=wp.vec3),
         triangles: wp.array(dtype=wp.vec3i),
@@ -691,6 +753,7 @@ def make_kernels():
         "centre": centre_kernel,
         "face": face_kernel,
         "degenerate": degenerate_kernel,
+        "relax": relax_kernel,
     }
 
 
@@ -754,3 +817,102 @@ def gather_vertices_kernel(
     out_positions[tid] = positions[v]
     out_normals[tid] = normals[v]
     out_colors[tid] = colors[v]
+
+
+@wp.kernel(enable_backward=False)
+def skinny_vertices_kernel(
+    positions: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    cos_limit: float,
+    offset: int,
+    flags: wp.array(dtype=wp.int32),
+):
+    """Flag the corners of triangles whose smallest angle is under acos(cos_limit)
+    (every writer stores 1, so concurrent writes agree)."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    if smallest_angle_cosine(positions[t[0]], positions[t[1]], positions[t[2]]) > cos_limit:
+        flags[t[0]] = 1
+        flags[t[1]] = 1
+        flags[t[2]] = 1
+
+
+@wp.kernel(enable_backward=False)
+def flagged_corners_kernel(
+    triangles: wp.array(dtype=wp.vec3i), flags: wp.array(dtype=wp.int32), offset: int, counts: wp.array(dtype=wp.int32)
+):
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    counts[tid] = flags[t[0]] + flags[t[1]] + flags[t[2]]
+
+
+@wp.kernel(enable_backward=False)
+def emit_corners_kernel(
+    triangles: wp.array(dtype=wp.vec3i),
+    flags: wp.array(dtype=wp.int32),
+    offsets: wp.array(dtype=wp.int32),
+    offset: int,
+    corner_vertex: wp.array(dtype=wp.int32),
+    corner_triangle: wp.array(dtype=wp.int32),
+):
+    """(vertex, triangle) of each corner at a flagged vertex, in triangle order."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    o = offsets[tid]
+    for c in range(3):
+        if flags[t[c]] != 0:
+            corner_vertex[o] = t[c]
+            corner_triangle[o] = tid
+            o += 1
+
+
+@wp.kernel(enable_backward=False)
+def flipped_kernel(
+    old_positions: wp.array(dtype=wp.vec3),
+    new_positions: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    moved: wp.array(dtype=wp.int32),
+    cos_floor: float,
+    offset: int,
+    revert: wp.array(dtype=wp.int32),
+):
+    """Flag for reverting the moved corners of a triangle the moves turned over
+    (normal against the old one), collapsed, or left with a smaller smallest
+    angle than ``acos(cos_floor)`` when it had a larger one."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    if moved[t[0]] + moved[t[1]] + moved[t[2]] == 0:
+        return
+    a = old_positions[t[0]]
+    b = old_positions[t[1]]
+    c = old_positions[t[2]]
+    a1 = new_positions[t[0]]
+    b1 = new_positions[t[1]]
+    c1 = new_positions[t[2]]
+    n0 = wp.cross(b - a, c - a)
+    n1 = wp.cross(b1 - a1, c1 - a1)
+    worse = smallest_angle_cosine(a1, b1, c1) > wp.max(cos_floor, smallest_angle_cosine(a, b, c))
+    if wp.dot(n0, n1) <= 0.0 or wp.length_sq(n1) == 0.0 or worse:
+        for k in range(3):
+            if moved[t[k]] != 0:
+                revert[t[k]] = 1
+
+
+@wp.kernel(enable_backward=False)
+def revert_kernel(
+    revert: wp.array(dtype=wp.int32),
+    old_positions: wp.array(dtype=wp.vec3),
+    old_normals: wp.array(dtype=wp.vec3),
+    old_colors: wp.array(dtype=wp.vec3),
+    offset: int,
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    colors: wp.array(dtype=wp.vec3),
+    moved: wp.array(dtype=wp.int32),
+):
+    tid = wp.tid() + offset
+    if revert[tid] != 0:
+        positions[tid] = old_positions[tid]
+        normals[tid] = old_normals[tid]
+        colors[tid] = old_colors[tid]
+        moved[tid] = 0

@@ -7,7 +7,7 @@ import warp as wp
 
 from .._errors import ResourceError, WarpblobError
 from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
-from .._stages import compact_kernel
+from .._stages import compact_kernel, mark_heads_kernel
 from .._linearize import linearize
 from .._parallel import launch
 from ..field._engine import block_chunk, launch_blocks, model_arrays, resolve_device
@@ -87,6 +87,7 @@ def polygonize(
     max_memory: int | None = None,
     threads: int | None = None,
     progress: bool | None = None,
+    relax: bool = True,
 ) -> SurfaceMesh:
     """Polygonize ``model`` into a closed, coloured, shared-vertex triangle mesh.
 
@@ -114,6 +115,12 @@ def polygonize(
         threads: CPU threads (default: all cores).
         progress: show a bar of the stages on a terminal (``None``: for
             grids of 8 million cells and more, jobs of seconds).
+        relax: improve the triangles with a smallest angle under 10 degrees:
+            their vertices move halfway to the centroid of their neighbours
+            in the tangent plane and back onto the surface (Newton along the
+            gradient, to the same tolerance); a move that turns a triangle
+            over or makes it skinnier is undone. Vertices then no longer lie
+            on grid edges; the connectivity is unchanged.
 
     Returns:
         :class:`~warpblob.mesh.SurfaceMesh`; ``stats`` holds
@@ -154,14 +161,14 @@ def polygonize(
     g, cells, blocks = grid
     n_blocks = int(np.prod(blocks))
     show = bool(progress) or (progress is None and n_blocks * _kernels.CELLS >= PROGRESS_CELLS)
-    clock = StageClock(dev, "polygonize", 6, show=show)
+    clock = StageClock(dev, "polygonize", 7 if relax else 6, show=show)
     try:
-        return _run(lm, g, n_blocks, blocks, dev, float(iso), float(tolerance), limit, threads, clock, stats)
+        return _run(lm, g, n_blocks, blocks, dev, float(iso), float(tolerance), limit, threads, clock, stats, relax)
     finally:
         clock.close()
 
 
-def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, stats) -> SurfaceMesh:
+def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, stats, relax) -> SurfaceMesh:
     """The stages of :func:`polygonize` on grid ``g`` (arguments checked)."""
     lap = clock.lap
     check_memory("polygonize", "block classification", n_blocks * 16, limit)
@@ -279,16 +286,26 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     n_kept = triangles.shape[0]
     lap("faces")
 
+    # 7. relax the vertices of skinny triangles along the surface
+    relax_steps = relaxed = 0
+    if relax and n_kept:
+        positions, normals, colors, relaxed, relax_steps = _relax(
+            m, triangles, positions, normals, colors, iso, tolerance, g.h, limit, dev, threads
+        )
+        lap("relax")
+
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
     grid_evaluations = int(evaluated.numpy().sum()) if n_samples else 0
     interval_evaluations = n_blocks + n_subs
-    field_evaluations = grid_evaluations + root_steps
+    field_evaluations = grid_evaluations + root_steps + relax_steps
     stats.update(
         vertices=n_vertices,
         centre_vertices=n_centres,
         triangles=n_kept,
         degenerate_removed=n_triangles - n_kept,
         welded_vertices=n_welded,
+        relaxed_vertices=relaxed,
+        relax_evaluations=relax_steps,
         grid_evaluations=grid_evaluations,
         root_evaluations=root_steps,
         field_evaluations=field_evaluations,
@@ -395,3 +412,63 @@ def _drop_unused(triangles, positions, normals, colors, device, threads):
     renumbered = wp.empty_like(triangles)
     launch(_kernels.remap_triangles_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
     return (renumbered, *out)
+
+
+#: relaxation: triangles whose smallest angle is under this are improved
+RELAX_ANGLE = 10.0
+#: the fraction of the way to the neighbours' centroid a vertex moves
+RELAX_AMOUNT = 0.5
+
+
+def _relax(m, triangles, positions, normals, colors, iso, tolerance, h, limit, device, threads):
+    """Tangential relaxation of the vertices of skinny triangles (see
+    :func:`polygonize`'s ``relax``). Returns new (positions, normals, colors),
+    the number of vertices that moved and the field evaluations it took.
+
+    The corners at flagged vertices are listed as (vertex, triangle) pairs,
+    sorted by vertex (``wp.utils.radix_sort_pairs``, stable), so each vertex
+    reads its own triangles without atomics; one thread per vertex moves it.
+    Moves are then checked per triangle (no triangle turned over, collapsed,
+    or made skinnier than both before and the angle limit) and the moved
+    corners of a failing triangle are put back, until every triangle passes."""
+    n_vertices = positions.shape[0]
+    n_triangles = triangles.shape[0]
+    kernels = _kernel_set()
+    cos_limit = float(np.cos(np.radians(RELAX_ANGLE)))
+    flags = wp.zeros(n_vertices, dtype=wp.int32, device=device)
+    launch(_kernels.skinny_vertices_kernel, n_triangles, [positions, triangles, cos_limit], [flags], device, threads)
+    counts = wp.empty(n_triangles, dtype=wp.int32, device=device)
+    launch(_kernels.flagged_corners_kernel, n_triangles, [triangles, flags], [counts], device, threads)
+    offsets, n_corners = scan(counts)
+    if n_corners == 0:
+        return positions, normals, colors, 0, 0
+    check_memory("polygonize", "relaxation", n_corners * 20 + n_vertices * 40, limit)
+    corner_vertex = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
+    corner_triangle = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
+    launch(_kernels.emit_corners_kernel, n_triangles, [triangles, flags, offsets], [corner_vertex, corner_triangle], device, threads)
+    wp.utils.radix_sort_pairs(corner_vertex, corner_triangle, n_corners)
+    heads = wp.empty(n_corners, dtype=wp.int32, device=device)
+    launch(mark_heads_kernel, n_corners, [corner_vertex], [heads], device, threads)
+    starts = compact(heads, device, threads)
+    n_moving = starts.shape[0]
+    new = [wp.clone(a) for a in (positions, normals, colors)]
+    moved = wp.zeros(n_vertices, dtype=wp.int32, device=device)
+    evaluations = wp.empty(n_moving, dtype=wp.int32, device=device)
+    launch(
+        kernels["relax"], n_moving,
+        [m, float(iso), float(tolerance), RELAX_AMOUNT, float(h), positions, normals, triangles, corner_vertex,
+         corner_triangle, starts, n_corners],
+        [*new, moved, evaluations], device, threads,
+    )  # fmt: skip
+    revert = wp.empty(n_vertices, dtype=wp.int32, device=device)
+    for _ in range(8):
+        revert.zero_()
+        launch(_kernels.flipped_kernel, n_triangles, [positions, new[0], triangles, moved, cos_limit], [revert], device, threads)
+        _, n_revert = scan(revert)
+        if n_revert == 0:
+            break
+        launch(_kernels.revert_kernel, n_vertices, [revert, positions, normals, colors], [*new, moved], device, threads)
+    else:  # pragma: no cover - the moves never settled: keep none of them
+        return positions, normals, colors, 0, int(evaluations.numpy().sum())
+    _, n_moved = scan(moved)
+    return (*new, n_moved, int(evaluations.numpy().sum()))
