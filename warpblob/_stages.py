@@ -106,6 +106,12 @@ def mark_heads_kernel(keys: wp.array(dtype=Any), offset: int, heads: wp.array(dt
     heads[i] = head
 
 
+# explicit overloads: implicit ones are instantiated at the first launch, which
+# races when the range-split launcher issues it from two threads at once
+for _dtype in (wp.int32, wp.int64):
+    wp.overload(mark_heads_kernel, {"keys": wp.array(dtype=_dtype)})
+
+
 @wp.kernel(enable_backward=False)
 def compact_kernel(
     flags: wp.array(dtype=wp.int32), scanned: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.int32)

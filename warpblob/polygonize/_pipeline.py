@@ -116,11 +116,11 @@ def polygonize(
         progress: show a bar of the stages on a terminal (``None``: for
             grids of 8 million cells and more, jobs of seconds).
         relax: improve the triangles with a smallest angle under 10 degrees:
-            their vertices move halfway to the centroid of their neighbours
-            in the tangent plane and back onto the surface (Newton along the
-            gradient, to the same tolerance); a move that turns a triangle
-            over or makes it skinnier is undone. Vertices then no longer lie
-            on grid edges; the connectivity is unchanged.
+            the ends of their shortest edge move halfway to the centroid of
+            their neighbours in the tangent plane and back onto the surface
+            (Newton along the gradient, to the same tolerance); a move that
+            turns a triangle over or makes it skinnier is undone. Vertices
+            then no longer lie on grid edges; the connectivity is unchanged.
 
     Returns:
         :class:`~warpblob.mesh.SurfaceMesh`; ``stats`` holds
