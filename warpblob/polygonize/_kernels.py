@@ -443,7 +443,7 @@ def make_kernels():
         centre_counts[tid] = centres
 
     @wp.kernel(enable_backward=False, module="unique")
-    def vertex_kernel(
+    def edge_vertex_kernel(
         m: ModelArrays,
         g: Grid,
         iso: float,
@@ -453,44 +453,43 @@ def make_kernels():
         samples: wp.array(dtype=wp.float32),
         block_map: wp.array(dtype=wp.int32),
         block_states: wp.array(dtype=wp.int32),
-        edge_masks: wp.array(dtype=wp.int32),
-        vertex_offsets: wp.array(dtype=wp.int32),
+        crossed: wp.array(dtype=wp.int32),
         offset: int,
         positions: wp.array(dtype=wp.vec3),
         normals: wp.array(dtype=wp.vec3),
         colors: wp.array(dtype=wp.vec3),
         evaluations: wp.array(dtype=wp.int32),
     ):
+        """The vertex of crossed edge ``tid`` (``crossed[tid] = 4 * cell + axis``,
+        the edge leaving the cell's lower corner along ``axis``), on the
+        surface to ``|F - iso| <= tolerance``: the safeguarded search started
+        at the root of the cubic through the four samples on the edge's line
+        (the linear guess at the grid's border)."""
         tid = wp.tid() + offset
-        mask = edge_masks[tid]
-        if mask == 0:
-            return
-        a = tid // _CELLS
+        code = crossed[tid]
+        cell = code // 4
+        axis = code - 4 * cell
+        a = cell // _CELLS
         c = block_coords(g, active[a])
-        lc = local_cell(tid - a * _CELLS)
+        lc = local_cell(cell - a * _CELLS)
         i = lc[0]
         j = lc[1]
         k = lc[2]
         p0 = vertex_position(g, c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
         f0 = sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states) - iso
-        out = vertex_offsets[tid]
-        for axis in range(3):
-            if (mask >> axis) & 1 != 0:
-                step = wp.vec3(0.0)
-                step[axis] = g.h
-                # the samples before and after the edge along its axis shape a cubic start
-                d = wp.vec3i(0)
-                d[axis] = 1
-                f1 = sample_at(g, a, c, i + d[0], j + d[1], k + d[2], iso, samples, block_map, block_states) - iso
-                t0 = float(-1.0)
-                gv = wp.vec3i(c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
-                if gv[axis] >= 1 and gv[axis] + 2 <= g.cells[axis]:
-                    fm = sample_at(g, a, c, i - d[0], j - d[1], k - d[2], iso, samples, block_map, block_states) - iso
-                    f2 = sample_at(g, a, c, i + 2 * d[0], j + 2 * d[1], k + 2 * d[2], iso, samples, block_map, block_states) - iso
-                    t0 = cubic_guess(fm, f0, f1, f2)
-                r, t, count = segment_root(m, p0, step, f0, f1, t0, iso, tolerance, max_iterations)
-                store_vertex(out, p0 + t * step, r, count, positions, normals, colors, evaluations)
-                out += 1
+        step = wp.vec3(0.0)
+        step[axis] = g.h
+        d = wp.vec3i(0)
+        d[axis] = 1
+        f1 = sample_at(g, a, c, i + d[0], j + d[1], k + d[2], iso, samples, block_map, block_states) - iso
+        t0 = float(-1.0)
+        gv = wp.vec3i(c[0] * _BLOCK + i, c[1] * _BLOCK + j, c[2] * _BLOCK + k)
+        if gv[axis] >= 1 and gv[axis] + 2 <= g.cells[axis]:
+            fm = sample_at(g, a, c, i - d[0], j - d[1], k - d[2], iso, samples, block_map, block_states) - iso
+            f2 = sample_at(g, a, c, i + 2 * d[0], j + 2 * d[1], k + 2 * d[2], iso, samples, block_map, block_states) - iso
+            t0 = cubic_guess(fm, f0, f1, f2)
+        r, t, count = segment_root(m, p0, step, f0, f1, t0, iso, tolerance, max_iterations)
+        store_vertex(tid, p0 + t * step, r, count, positions, normals, colors, evaluations)
 
     @wp.func
     def edge_vertex(
@@ -749,7 +748,7 @@ def make_kernels():
         "sample": sample_blocks_kernel,
         "sample_rows": sample_rows_kernel,
         "count": count_kernel,
-        "vertex": vertex_kernel,
+        "edge_vertex": edge_vertex_kernel,
         "centre": centre_kernel,
         "face": face_kernel,
         "degenerate": degenerate_kernel,
@@ -931,3 +930,20 @@ def revert_kernel(
         normals[tid] = old_normals[tid]
         colors[tid] = old_colors[tid]
         moved[tid] = 0
+
+
+@wp.kernel(enable_backward=False)
+def crossed_edges_kernel(
+    edge_masks: wp.array(dtype=wp.int32),
+    vertex_offsets: wp.array(dtype=wp.int32),
+    offset: int,
+    crossed: wp.array(dtype=wp.int32),
+):
+    """``crossed[v] = 4 * cell + axis`` for the vertex ``v`` of each crossed edge."""
+    tid = wp.tid() + offset
+    mask = edge_masks[tid]
+    out = vertex_offsets[tid]
+    for axis in range(3):
+        if (mask >> axis) & 1 != 0:
+            crossed[out] = 4 * tid + axis
+            out += 1

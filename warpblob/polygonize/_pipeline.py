@@ -22,6 +22,8 @@ _CACHE: dict = {}
 #: (array mode: the traversal cost is shared, best for CPU threads), "points"
 #: once per vertex (one GPU thread each), "auto" picks by device
 SAMPLING = "auto"
+#: smallest piece of a CPU launch whose items each run a root search (microseconds each)
+HEAVY_CHUNK = 64
 #: corners of a zero-area triangle closer than WELD cells are welded
 WELD = 1.0e-4
 
@@ -200,6 +202,8 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     # 2. field at the vertices of active blocks
     n_samples = n_active * _kernels.CELLS  # one sample per owned vertex
     n_cells = n_active * _kernels.CELLS
+    if 4 * n_cells > np.iinfo(np.int32).max:  # crossed edges are coded as 4 * cell + axis
+        raise ResourceError(f"polygonize: {n_active} blocks hold surface, over the int32 index range; use a larger cellsize")
     check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 7, limit)
     n_subs = n_active * _kernels.SUB_SIDE**3
     states = wp.empty(n_subs, dtype=wp.int32, device=dev)
@@ -244,19 +248,22 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     lap("count")
 
     # 4. one vertex per crossed edge, on the surface (then loop centres)
-    check_memory("polygonize", "output", n_vertices * 40 + n_triangles * 24, limit)
+    check_memory("polygonize", "output", n_vertices * 44 + n_triangles * 24, limit)
     positions = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
     normals = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
     colors = wp.empty(n_vertices, dtype=wp.vec3, device=dev)
     evaluations = wp.empty(n_vertices, dtype=wp.int32, device=dev)
     iterations = 40  # bisection alone reaches 1e-12 of the edge; Newton usually stops after 1-3
+    crossed = wp.empty(n_edge_vertices, dtype=wp.int32, device=dev)
+    launch(_kernels.crossed_edges_kernel, n_cells, [edge_masks, vertex_offsets], [crossed], dev, threads)
     launch(
-        kernels["vertex"],
-        n_cells,
-        [m, g, float(iso), float(tolerance), iterations, active, samples, block_map, block_states, edge_masks, vertex_offsets],
+        kernels["edge_vertex"],
+        n_edge_vertices,
+        [m, g, float(iso), float(tolerance), iterations, active, samples, block_map, block_states, crossed],
         [positions, normals, colors, evaluations],
         dev,
         threads,
+        min_chunk=HEAVY_CHUNK,
     )
     if n_centres:
         launch(
@@ -458,7 +465,7 @@ def _relax(m, triangles, positions, normals, colors, iso, tolerance, h, limit, d
         kernels["relax"], n_moving,
         [m, float(iso), float(tolerance), RELAX_AMOUNT, float(h), positions, normals, triangles, corner_vertex,
          corner_triangle, starts, n_corners],
-        [*new, moved, evaluations], device, threads,
+        [*new, moved, evaluations], device, threads, min_chunk=HEAVY_CHUNK,
     )  # fmt: skip
     revert = wp.empty(n_vertices, dtype=wp.int32, device=device)
     for _ in range(8):
