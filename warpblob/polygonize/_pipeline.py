@@ -306,7 +306,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     interval_evaluations = n_blocks + n_subs
     field_evaluations = grid_evaluations + root_steps + relax_steps
     stats.update(
-        vertices=n_vertices,
+        vertices=positions.shape[0],  # after welding
         centre_vertices=n_centres,
         triangles=n_kept,
         degenerate_removed=n_triangles - n_kept,
@@ -322,7 +322,6 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         seconds=clock.seconds,
         total_seconds=sum(clock.seconds.values()),
     )
-    stats["vertices"] = positions.shape[0]
     return SurfaceMesh(
         positions.numpy().reshape(-1, 3),
         triangles.numpy().reshape(-1, 3).astype(np.int32),
