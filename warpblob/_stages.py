@@ -11,7 +11,7 @@ import warp as wp
 from ._errors import ResourceError
 from ._parallel import launch
 
-__all__ = ["StageClock", "available_memory", "check_memory", "scan", "compact"]
+__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact"]
 
 #: grid cells from which ``progress=None`` shows a bar (a job of seconds on 2 CPU cores)
 PROGRESS_CELLS = 8_000_000
@@ -93,6 +93,24 @@ def scan(counts: wp.array) -> tuple[wp.array, int]:
     wp.utils.array_scan(counts, offsets, inclusive=False)
     # host sync: the total sizes the next stage's allocation
     return offsets, int(offsets[-1:].numpy()[0]) + int(counts[-1:].numpy()[0])
+
+
+def scans(*counts: wp.array) -> tuple[list[wp.array], list[int]]:
+    """Exclusive prefix sums of several int32 ``counts`` arrays and their
+    totals, with one host sync for all of them (:func:`scan` takes one each)."""
+    device = counts[0].device
+    ends = wp.zeros(2 * len(counts), dtype=wp.int32, device=device)
+    offsets = []
+    for k, c in enumerate(counts):
+        o = wp.empty_like(c)
+        n = c.shape[0]
+        if n:
+            wp.utils.array_scan(c, o, inclusive=False)
+            wp.copy(ends, o, dest_offset=2 * k, src_offset=n - 1, count=1)
+            wp.copy(ends, c, dest_offset=2 * k + 1, src_offset=n - 1, count=1)
+        offsets.append(o)
+    e = ends.numpy()  # host sync: the totals size the next stage's allocations
+    return offsets, [int(e[2 * k]) + int(e[2 * k + 1]) for k in range(len(counts))]
 
 
 @wp.kernel(enable_backward=False)

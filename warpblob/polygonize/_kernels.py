@@ -676,7 +676,6 @@ def make_kernels():
         triangles: wp.array(dtype=wp.vec3i),
         corner_vertex: wp.array(dtype=wp.int32),
         corner_triangle: wp.array(dtype=wp.int32),
-        starts: wp.array(dtype=wp.int32),
         n_corners: int,
         offset: int,
         new_positions: wp.array(dtype=wp.vec3),
@@ -689,14 +688,20 @@ def make_kernels():
         centroid of its neighbours, within its tangent plane, then back onto
         the surface by Newton steps along the gradient until ``|F - iso| <=
         tolerance`` (the vertex stays where it was if they do not get there,
-        or wander farther than ``reach``). Its corners are
-        ``corner_triangle[starts[tid] : next start]``, sorted by vertex."""
+        or wander farther than ``reach``). The corners are sorted by vertex;
+        the thread of a vertex's first corner does the work, the others stop."""
         tid = wp.tid() + offset
-        first = starts[tid]
-        last = n_corners
-        if tid + 1 < starts.shape[0]:
-            last = starts[tid + 1]
-        v = corner_vertex[first]
+        evaluations[tid] = 0
+        v = corner_vertex[tid]
+        if tid > 0:
+            if corner_vertex[tid - 1] == v:
+                return
+        first = tid
+        last = tid + 1
+        while last < n_corners:
+            if corner_vertex[last] != v:
+                break
+            last += 1
         x0 = positions[v]
         acc = wp.vec3(0.0)
         for q in range(first, last):

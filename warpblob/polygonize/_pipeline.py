@@ -6,8 +6,8 @@ import numpy as np
 import warp as wp
 
 from .._errors import ResourceError, WarpblobError
-from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
-from .._stages import compact_kernel, mark_heads_kernel
+from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan, scans
+from .._stages import compact_kernel
 from .._linearize import linearize
 from .._parallel import launch
 from ..field._engine import block_chunk, launch_blocks, model_arrays, resolve_device
@@ -241,9 +241,9 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         dev,
         threads,
     )
-    vertex_offsets, n_edge_vertices = scan(vertex_counts)
-    triangle_offsets, n_triangles = scan(triangle_counts)
-    centre_offsets, n_centres = scan(centre_counts)
+    (vertex_offsets, triangle_offsets, centre_offsets), (n_edge_vertices, n_triangles, n_centres) = scans(
+        vertex_counts, triangle_counts, centre_counts
+    )
     n_vertices = n_edge_vertices + n_centres
     lap("count")
 
@@ -433,7 +433,8 @@ def _relax(m, triangles, positions, normals, colors, iso, tolerance, h, limit, d
 
     The corners at flagged vertices are listed as (vertex, triangle) pairs,
     sorted by vertex (``wp.utils.radix_sort_pairs``, stable), so each vertex
-    reads its own triangles without atomics; one thread per vertex moves it.
+    reads its own triangles without atomics; the thread of a vertex's first
+    corner moves it.
     Moves are then checked per triangle (no triangle turned over, collapsed,
     or made skinnier than both before and the angle limit) and the moved
     corners of a failing triangle are put back, until every triangle passes."""
@@ -453,17 +454,13 @@ def _relax(m, triangles, positions, normals, colors, iso, tolerance, h, limit, d
     corner_triangle = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
     launch(_kernels.emit_corners_kernel, n_triangles, [triangles, flags, offsets], [corner_vertex, corner_triangle], device, threads)
     wp.utils.radix_sort_pairs(corner_vertex, corner_triangle, n_corners)
-    heads = wp.empty(n_corners, dtype=wp.int32, device=device)
-    launch(mark_heads_kernel, n_corners, [corner_vertex], [heads], device, threads)
-    starts = compact(heads, device, threads)
-    n_moving = starts.shape[0]
     new = [wp.clone(a) for a in (positions, normals, colors)]
     moved = wp.zeros(n_vertices, dtype=wp.int32, device=device)
-    evaluations = wp.empty(n_moving, dtype=wp.int32, device=device)
+    evaluations = wp.empty(n_corners, dtype=wp.int32, device=device)
     launch(
-        kernels["relax"], n_moving,
+        kernels["relax"], n_corners,
         [m, float(iso), float(tolerance), RELAX_AMOUNT, float(h), positions, normals, triangles, corner_vertex,
-         corner_triangle, starts, n_corners],
+         corner_triangle, n_corners],
         [*new, moved, evaluations], device, threads, min_chunk=HEAVY_CHUNK,
     )  # fmt: skip
     revert = wp.empty(n_vertices, dtype=wp.int32, device=device)
