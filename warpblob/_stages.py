@@ -87,12 +87,8 @@ def check_memory(who: str, stage: str, need: int, limit: int) -> None:
 
 def scan(counts: wp.array) -> tuple[wp.array, int]:
     """Exclusive prefix sum of int32 ``counts`` and the total (one host sync)."""
-    offsets = wp.empty_like(counts)
-    if counts.shape[0] == 0:
-        return offsets, 0
-    wp.utils.array_scan(counts, offsets, inclusive=False)
-    # host sync: the total sizes the next stage's allocation
-    return offsets, int(offsets[-1:].numpy()[0]) + int(counts[-1:].numpy()[0])
+    (offsets,), (total,) = scans(counts)
+    return offsets, total
 
 
 def scans(*counts: wp.array) -> tuple[list[wp.array], list[int]]:
