@@ -197,6 +197,35 @@ def make_kernels():
     block_bounds = make_evaluate(True, interval=True, array=True)
     segment_root = make_segment_root(value)
 
+    @wp.func
+    def project(m: ModelArrays, x0: wp.vec3, iso: float, tolerance: float, max_iterations: int, max_step: float):
+        """Newton steps along the gradient from ``x0`` onto the surface, each at
+        most ``max_step`` long: (evaluation r, its point, evaluations, whether
+        ``|F - iso| <= tolerance`` there)."""
+        x = x0
+        at = x0
+        r = vec7()
+        count = int(0)
+        ok = bool(False)
+        for _it in range(max_iterations):
+            r = value(m, x, 0.0)
+            at = x
+            count += 1
+            ft = r[0] - iso
+            grad = wp.vec3(r[1], r[2], r[3])
+            gg = wp.dot(grad, grad)
+            if wp.abs(ft) <= tolerance:
+                ok = True
+                break
+            if gg <= 0.0:
+                break
+            step = -(ft / gg) * grad
+            length = wp.length(step)
+            if length > max_step:
+                step = step * (max_step / length)
+            x = x + step
+        return r, at, count, ok
+
     @wp.kernel(enable_backward=False, module="unique")
     def classify_blocks_kernel(
         m: ModelArrays, g: Grid, iso: float, offset: int, flags: wp.array(dtype=wp.int32),
@@ -583,23 +612,8 @@ def make_kernels():
                 x = wp.vec3(0.0)
                 for t in range(n):
                     x += positions[ids[t]]
-                x = x / float(n)
-                r = vec7()
-                count = int(0)
-                for _it in range(max_iterations):
-                    r = value(m, x, 0.0)
-                    count += 1
-                    ft = r[0] - iso
-                    grad = wp.vec3(r[1], r[2], r[3])
-                    gg = wp.dot(grad, grad)
-                    if wp.abs(ft) <= tolerance or gg <= 0.0:
-                        break
-                    step = -(ft / gg) * grad
-                    length = wp.length(step)
-                    if length > 0.5 * g.h:
-                        step = step * (0.5 * g.h / length)
-                    x = x + step
-                store_vertex(out, x, r, count, positions, normals, colors, evaluations)
+                r, at, count, ok = project(m, x / float(n), iso, tolerance, max_iterations, 0.5 * g.h)
+                store_vertex(out, at, r, count, positions, normals, colors, evaluations)
                 out += 1
             first += n
 
@@ -710,24 +724,12 @@ def make_kernels():
         centroid = acc / (2.0 * float(last - first))
         n = normals[v]
         d = centroid - x0
-        x = x0 + amount * (d - wp.dot(d, n) * n)
-        count = int(0)
-        for _it in range(8):
-            r = value(m, x, 0.0)
-            count += 1
-            f = r[0] - iso
-            g = wp.vec3(r[1], r[2], r[3])
-            if wp.abs(f) <= tolerance:
-                if wp.length(x - x0) <= reach:
-                    new_positions[v] = x
-                    new_normals[v] = -wp.normalize(g)
-                    new_colors[v] = wp.vec3(r[4], r[5], r[6])
-                    moved[v] = 1
-                break
-            gg = wp.dot(g, g)
-            if gg == 0.0:
-                break
-            x = x - (f / gg) * g
+        r, x, count, ok = project(m, x0 + amount * (d - wp.dot(d, n) * n), iso, tolerance, 8, 0.5 * reach)
+        if ok and wp.length(x - x0) <= reach:
+            new_positions[v] = x
+            new_normals[v] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
+            new_colors[v] = wp.vec3(r[4], r[5], r[6])
+            moved[v] = 1
         evaluations[tid] = count
 
     @wp.kernel(enable_backward=False, module="unique")
