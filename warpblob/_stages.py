@@ -56,8 +56,9 @@ class StageClock:
 
     def close(self) -> None:
         """Remove the bar (also done at the last stage, and when the clock is dropped)."""
-        if self._bar is not None:
-            self._bar.close()
+        bar = getattr(self, "_bar", None)
+        if bar is not None:
+            bar.close()
             self._bar = None
 
 
