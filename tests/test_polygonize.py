@@ -323,3 +323,18 @@ def test_relaxation_improves_skinny_triangles_and_keeps_the_surface(name, device
     ref = -g / np.linalg.norm(g, axis=1, keepdims=True)
     assert np.einsum("ij,ij->i", ref, mesh.normals[check]).min() > 1 - 1e-4
     np.testing.assert_allclose(mesh.colors[check], colors, atol=1e-4)
+
+
+def test_progress_bar_shows_the_stages_on_a_terminal(monkeypatch, capsys):
+    """``progress=True`` draws a bar of the stages on stderr when it is a terminal, and
+    nothing when it is not (logs, pipes)."""
+    import sys
+
+    model = wb.scenes.tumor()
+    wb.polygonize(model, cellsize=0.1, progress=True)
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True, raising=False)
+    mesh = wb.polygonize(model, cellsize=0.1, progress=True)
+    err = capsys.readouterr().err
+    assert "polygonize" in err and "7/7" in err and "relax" in err
+    assert mesh.is_closed_manifold()

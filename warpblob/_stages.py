@@ -36,7 +36,7 @@ class StageClock:
         if show:
             from ._progress import progress
 
-            bar = progress(range(stages), desc=desc, total=stages)
+            bar = progress(range(stages), desc=desc, total=stages, mininterval=0.0)  # a handful of steps: draw each
             self._bar = bar if hasattr(bar, "update") else None
 
     def lap(self, name: str) -> None:
