@@ -23,9 +23,10 @@ supports overlap matter, so the sum is taken per grid cell of the operator
 and the largest cell sum is used. Models with warps are not benchmarked here.
 
 Timings are warm (every kernel compiled and run once first), best of three;
-dense peers include the dense field evaluation. Triangle quality: the share
-of triangles with a smallest angle under 10 degrees, warpblob against Warp's
-IsoSurfaceMarchingCubes on the same grid. Writes
+dense peers include the dense field evaluation; warpblob runs with its
+defaults (vertices refined to |F - 0.5| <= 1e-4, skinny triangles relaxed).
+Triangle quality: the share of triangles with a smallest angle under 10
+degrees, warpblob against Warp's IsoSurfaceMarchingCubes on the same grid. Writes
 benchmarks/results/bench_polygonize.json.
 """
 
