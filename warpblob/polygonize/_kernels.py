@@ -48,6 +48,14 @@ def block_coords(g: Grid, b: int):
 
 
 @wp.func
+def active_cell(g: Grid, active: wp.array(dtype=wp.int32), cell: int):
+    """(active block a, its block coordinates, block-local (i, j, k)) of cell
+    (or owned vertex) ``cell = a * 512 + l`` of the active blocks."""
+    a = cell // _CELLS
+    return a, block_coords(g, active[a]), local_cell(cell - a * _CELLS)
+
+
+@wp.func
 def local_cell(l: int):
     """Block-local (i, j, k) of cell (or owned vertex) ``l`` in [0, 512)."""
     return wp.vec3i(l % _BLOCK, (l // _BLOCK) % _BLOCK, l // (_BLOCK * _BLOCK))
@@ -341,9 +349,7 @@ def make_kernels():
         a neighbour); elsewhere a stand-in value on the proven side of ``iso``.
         Every grid vertex has one owner, so every cell sees the same values."""
         tid = wp.tid() + offset
-        a = tid // _CELLS
-        c = block_coords(g, active[a])
-        lc = local_cell(tid - a * _CELLS)
+        a, c, lc = active_cell(g, active, tid)
         v = wp.vec3i(c[0] * _BLOCK + lc[0], c[1] * _BLOCK + lc[1], c[2] * _BLOCK + lc[2])
         need = vertex_need(g, v, block_map, block_states, states)
         if need[0] != 0:
@@ -406,9 +412,7 @@ def make_kernels():
         centre_counts: wp.array(dtype=wp.int32),
     ):
         tid = wp.tid() + offset
-        a = tid // _CELLS
-        c = block_coords(g, active[a])
-        lc = local_cell(tid - a * _CELLS)
+        a, c, lc = active_cell(g, active, tid)
         i = lc[0]
         j = lc[1]
         k = lc[2]
@@ -498,9 +502,7 @@ def make_kernels():
         code = crossed[tid]
         cell = code // 4
         axis = code - 4 * cell
-        a = cell // _CELLS
-        c = block_coords(g, active[a])
-        lc = local_cell(cell - a * _CELLS)
+        a, c, lc = active_cell(g, active, cell)
         i = lc[0]
         j = lc[1]
         k = lc[2]
@@ -596,9 +598,7 @@ def make_kernels():
         tid = wp.tid() + offset
         if centre_counts[tid] == 0:
             return
-        a = tid // _CELLS
-        b = block_coords(g, active[a])
-        lc = local_cell(tid - a * _CELLS)
+        a, b, lc = active_cell(g, active, tid)
         i = lc[0]
         j = lc[1]
         k = lc[2]
@@ -638,9 +638,7 @@ def make_kernels():
         tid = wp.tid() + offset
         if triangle_counts[tid] == 0:
             return
-        a = tid // _CELLS
-        b = block_coords(g, active[a])
-        lc = local_cell(tid - a * _CELLS)
+        a, b, lc = active_cell(g, active, tid)
         i = lc[0]
         j = lc[1]
         k = lc[2]
