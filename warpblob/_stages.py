@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any
 
 import warp as wp
 
@@ -111,20 +110,14 @@ def scans(*counts: wp.array) -> tuple[list[wp.array], list[int]]:
 
 
 @wp.kernel(enable_backward=False)
-def mark_heads_kernel(keys: wp.array(dtype=Any), offset: int, heads: wp.array(dtype=wp.int32)):
-    """1 where a run of equal sorted keys starts (any key type)."""
+def mark_heads_kernel(keys: wp.array(dtype=wp.int64), offset: int, heads: wp.array(dtype=wp.int32)):
+    """1 where a run of equal sorted keys starts."""
     i = wp.tid() + offset
     head = int(1)
     if i > 0:
         if keys[i] == keys[i - 1]:
             head = 0
     heads[i] = head
-
-
-# explicit overloads: implicit ones are instantiated at the first launch, which
-# races when the range-split launcher issues it from two threads at once
-for _dtype in (wp.int32, wp.int64):
-    wp.overload(mark_heads_kernel, {"keys": wp.array(dtype=_dtype)})
 
 
 @wp.kernel(enable_backward=False)

@@ -365,7 +365,9 @@ def _weld(triangles, keep, positions, h: float, device, threads):
     few zero-area triangles (``keep`` 0) are read back to the host; a zero-area
     triangle without a short edge (three distinct collinear corners) is just
     dropped."""
-    dropped = compact(_flags(_kernels.dropped_kernel, keep, device, threads), device, threads).numpy()
+    flags = wp.empty(keep.shape[0], dtype=wp.int32, device=device)
+    launch(_kernels.dropped_kernel, keep.shape[0], [keep], [flags], device, threads)
+    dropped = compact(flags, device, threads).numpy()
     tris = triangles.numpy().reshape(-1, 3)[dropped]
     p = positions.numpy().reshape(-1, 3).astype(np.float64)
     a = tris.reshape(-1)
@@ -395,12 +397,6 @@ def _weld(triangles, keep, positions, h: float, device, threads):
         [out], device, threads,
     )  # fmt: skip
     return out, int(np.count_nonzero(nodes[label] != nodes))
-
-
-def _flags(kernel, values, device, threads):
-    flags = wp.empty(values.shape[0], dtype=wp.int32, device=device)
-    launch(kernel, values.shape[0], [values], [flags], device, threads)
-    return flags
 
 
 def _drop_unused(triangles, positions, normals, colors, device, threads):
