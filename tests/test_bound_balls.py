@@ -30,22 +30,31 @@ MODELS = {
 }
 
 
-def _sub_block_balls(origin, h, blocks):
-    """Centres (N, 64, 3) and radius of the sub-block balls of ``bound_blocks``,
+def _sub_block_cubes(origin, h, blocks):
+    """Centres (N, 64, 3) and half side of the sub-block cubes of ``bound_blocks``,
     in float32 as the kernel computes them."""
     s = np.arange(4)
     sk, sj, si = np.meshgrid(s, s, s, indexing="ij")
     local = np.stack([si, sj, sk], axis=-1).reshape(64, 3)
     index = (8 * blocks[:, None, :] + 2 * local[None] + 1).astype(np.float32)
     h = np.float32(h)
-    return origin.astype(np.float32) + h * index, h * np.float32(1.7320509) * np.float32(1.0001)
+    return origin.astype(np.float32) + h * index, h
+
+
+def _cube_samples(rng, centers, half, per_cube):
+    """Points of each cube: its 8 corners, its centre and ``per_cube`` uniform ones."""
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)] + [[0, 0, 0]], dtype=np.float64)
+    d = np.concatenate([np.broadcast_to(corners, (len(centers), 9, 3)), rng.uniform(-1, 1, (len(centers), per_cube, 3))], axis=1)
+    return centers[:, None, :] + half * d
 
 
 @pytest.mark.parametrize("name", sorted(MODELS) + ["random-0", "random-3"])
-def test_block_bounds_hold_and_match_ball_bounds(name, device):
-    """One tree walk per block (bounds rows) bounds its 64 sub-blocks: every
-    sampled point of a sub-block ball lies within them, and they equal the
-    per-ball bounds up to the rounding of sums taken in another order."""
+def test_block_bounds_hold_and_are_tighter_than_ball_bounds(name, device):
+    """One tree walk per block (bounds rows) bounds its 64 sub-block cubes:
+    every sampled point of a cube (corners, centre, random) lies within them,
+    and they are never looser than the per-ball bounds at the cubes'
+    circumscribed balls (the tangent-plane bound of convex skeletons only
+    tightens them)."""
     if name.startswith("random"):
         from test_field import random_model
 
@@ -60,20 +69,48 @@ def test_block_bounds_hold_and_match_ball_bounds(name, device):
     nb = np.ceil((hi - origin) / (8 * h)).astype(int)
     blocks = np.stack(np.meshgrid(*[np.arange(n) for n in nb], indexing="ij"), axis=-1).reshape(-1, 3)
     bounds = bound_blocks(model, origin, h, blocks, device=device)
-    centers, radius = _sub_block_balls(origin, h, blocks)
+    centers, half = _sub_block_cubes(origin, h, blocks)
     centers, bounds = centers.reshape(-1, 3), bounds.reshape(-1, 2)
-    pts = _ball_samples(rng, centers.astype(np.float64), np.full(len(centers), radius, np.float64), 6)
+    pts = _cube_samples(rng, centers.astype(np.float64), float(half), 6)
     f = reference_evaluate(model, pts.reshape(-1, 3))[0].reshape(len(centers), -1)
     assert np.all(f >= bounds[:, :1] - 2e-6), "a sampled point lies below its sub-block's F_min"
     assert np.all(f <= bounds[:, 1:] + 2e-6), "a sampled point lies above its sub-block's F_max"
+    radius = half * np.float32(1.7320509) * np.float32(1.0001)
     balls = bound_balls(model, centers, np.full(len(centers), radius), device=device)
-    known = balls < 1e29  # a warp's unknown bound [0, inf) is 1e30 plus the rest
-    np.testing.assert_array_equal(known, bounds < 1e29)
-    np.testing.assert_allclose(bounds[known], balls[known], rtol=1e-5, atol=1e-6)
+    assert np.all(bounds[:, 0] >= balls[:, 0] * (1 - 1e-5) - 1e-6), "a cube's F_min is below its ball's"
+    assert np.all(bounds[:, 1] <= balls[:, 1] * (1 + 1e-5) + 1e-6), "a cube's F_max is above its ball's"
     if name.startswith("random"):
         return  # a warp at the top leaves most bounds unknown
     decided = (bounds[:, 1] < 0.5) | (bounds[:, 0] >= 0.5)
     assert 0.3 < decided.mean() < 1.0, "test set-up: the blocks should hold surface and empty space"
+
+
+def test_cube_bounds_decide_more_than_ball_bounds(device):
+    """Near a flat face parallel to the grid (a box skeleton) the tangent-plane
+    bound decides sub-blocks the ball bound cannot: a cube whose nearest point
+    is a distance D from the face is decided once D clears the iso-distance,
+    a ball only once its centre is sqrt(3) half sides further out."""
+    model = wb.Box((0.0, 0.0, 0.0), (2.0, 2.0, 0.0), 0.5)  # a square plate, iso at 0.227 from it
+    h = 0.05
+    origin = np.array([-1.0, -1.0, -0.77], dtype=np.float32)  # cube centres at |z| = 0.28: 0.053 past the iso-surface
+    blocks = np.array([[i, j, k] for i in range(5) for j in range(5) for k in range(4)])
+    bounds = bound_blocks(model, origin, h, blocks, device=device).reshape(-1, 2)
+    centers, half = _sub_block_cubes(origin, h, blocks)
+    centers = centers.reshape(-1, 3).astype(np.float64)
+    balls = bound_balls(model, centers, np.full(len(centers), half * 1.7320509 * 1.0001), device=device)
+    decided = (bounds[:, 1] < 0.5) | (bounds[:, 0] >= 0.5)
+    ball_decided = (balls[:, 1] < 0.5) | (balls[:, 0] >= 0.5)
+    assert np.all(decided | ~ball_decided)
+    # outside the plate's middle the only undecided cubes are those within a
+    # cell of the iso-surface (inside, F_min still comes from the ball)
+    middle = np.all(np.abs(centers[:, :2]) < 0.5, axis=1)
+    gap = np.abs(centers[:, 2]) - 0.5 * (1 - 0.5 ** (1 / 3)) ** 0.5  # |z| minus the iso-distance
+    clear = middle & (gap > 1.01 * h)
+    assert clear.sum() > 100
+    assert np.all(decided[clear])
+    band = clear & (gap < 1.7 * h)  # past the iso-surface by more than h, less than the ball's sqrt(3) h
+    assert band.sum() > 50
+    assert not np.any(ball_decided[band])
 
 
 def test_block_bounds_bad_input():

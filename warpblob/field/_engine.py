@@ -54,12 +54,14 @@ def bound_blocks(model, origin, cellsize: float, blocks, *, device=None, threads
     The grid has points ``origin + cellsize * (i, j, k)``; block ``b`` is the
     8^3 cells from grid index ``8 * blocks[b]``, cut into 4^3 sub-blocks of
     2^3 cells. ``bounds[b, (sk * 4 + sj) * 4 + si]`` holds for every point of
-    the ball (radius ``sqrt(3) * cellsize``, which holds the sub-block's cube)
-    around the centre of sub-block ``(si, sj, sk)``: the same guarantee as
-    :func:`bound_balls` at those balls, computed in one tree walk per block
-    (bounds rows: each primitive bounds only the sub-blocks its box meets,
-    operators fold whole rows), which is how the polygonizer rejects empty
-    sub-blocks on the CPU.
+    the cube of sub-block ``(si, sj, sk)`` (side ``2 * cellsize``). They are
+    never looser than :func:`bound_balls` at the cube's circumscribed ball and
+    much tighter near flat parts of convex skeletons (a distance to a convex
+    set lies above its tangent plane, so over a cube it drops by at most the
+    half side times the 1-norm of its gradient, not the half diagonal). All
+    64 come from one tree walk per block (bounds rows: each primitive bounds
+    only the sub-blocks its box meets, operators fold whole rows), which is
+    how the polygonizer rejects empty sub-blocks on the CPU.
 
     Args:
         origin: (3,) position of grid point (0, 0, 0), model units.

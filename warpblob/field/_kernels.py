@@ -505,20 +505,35 @@ def ball_meets_box(c: wp.vec3, rad: float, lo: wp.vec3, hi: wp.vec3):
 
 
 @wp.func
-def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float):
-    """(F_min, F_max) of primitive ``node`` over the ball: distances to a solid
-    skeleton are 1-Lipschitz, so d varies by at most the ball's radius in the
-    local frame (``rad`` times the stretch of the inverse map)."""
+def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float, half: float):
+    """(F_min, F_max) of primitive ``node`` over the ball of radius ``rad``
+    around ``c``, or, when ``half`` > 0, over the axis-aligned cube of half
+    side ``half`` that the ball circumscribes (``rad = sqrt(3) half``).
+
+    Distances to a solid skeleton are 1-Lipschitz, so d varies by at most the
+    ball's radius in the local frame (``rad`` times the stretch of the inverse
+    map). For a cube and a convex skeleton (point, segment, disc, cone, box)
+    the distance is also a convex function, so it lies above its tangent plane
+    at the centre: ``d(c + e) >= d(c) + (A^T grad d) . e >= d(c) - half |A^T
+    grad d|_1`` for ``|e_i| <= half`` (A the inverse map's linear part). That
+    bound is never looser than the ball's (``|v|_1 <= sqrt(3) |v|_2``) and is
+    much tighter where the surface is parallel to the grid's planes."""
     kind = m.kind[node]
     if kind >= K_INFLATE:
         # spline-based distances have no global Lipschitz bound: F is in [0, 1]
         return vec7(0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     r = m.ref[node]
-    x = apply_inverse(m.inverse[r], c)
-    d = primitive_distance(kind, x, m.params[node], m.data, m.data_start[r])[0]
+    inv = m.inverse[r]
+    x = apply_inverse(inv, c)
+    dg = primitive_distance(kind, x, m.params[node], m.data, m.data_start[r])
+    d = dg[0]
     slack = rad * m.stretch[r]
+    near = wp.max(d - slack, 0.0)
+    if half > 0.0 and d > 0.0 and kind != K_RING and kind != K_POLYGON:
+        a = pull_gradient(inv, wp.vec3(dg[1], dg[2], dg[3]))
+        near = wp.max(near, d - half * (wp.abs(a[0]) + wp.abs(a[1]) + wp.abs(a[2])))
     rr = m.radius[r]
-    return vec7(falloff((d + slack) / rr)[0], falloff(wp.max(d - slack, 0.0) / rr)[0], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return vec7(falloff((d + slack) / rr)[0], falloff(near / rr)[0], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @wp.func
@@ -813,32 +828,33 @@ SUB_BLOCK_SIDE = 4
 SUB_BLOCKS = SUB_BLOCK_SIDE * SUB_BLOCK_SIDE * SUB_BLOCK_SIDE
 _SSIDE = wp.constant(SUB_BLOCK_SIDE)
 _SUBS = wp.constant(SUB_BLOCKS)
+#: half side of a 2-cell sub-block's cube in cells, plus 1e-4 (its ball has sqrt(3) times that radius)
+SUB_HALF = 1.0001
+_SUB_HALF = wp.constant(SUB_HALF)
 #: ball radius of a 2-cell sub-block in cells: its half diagonal sqrt(3), plus 1e-4
-SUB_BALL = 1.7320509 * 1.0001
+SUB_BALL = 1.7320509 * SUB_HALF
 _SUB_BALL = wp.constant(SUB_BALL)
 
 
 @wp.func
-def sub_block_ball(ctx: BlockRows, si: int, sj: int, sk: int):
-    """(centre, radius) of the ball around sub-block (si, sj, sk) of the block
-    whose first cell is at grid index ``ctx.corner``."""
-    c = grid_point(ctx.origin, ctx.h, ctx.corner[0] + 2 * si + 1, ctx.corner[1] + 2 * sj + 1, ctx.corner[2] + 2 * sk + 1)
-    return c, ctx.h * _SUB_BALL
+def sub_block_center(ctx: BlockRows, si: int, sj: int, sk: int):
+    """Centre of sub-block (si, sj, sk) of the block whose first cell is at
+    grid index ``ctx.corner``; its cube has half side ``ctx.h``."""
+    return grid_point(ctx.origin, ctx.h, ctx.corner[0] + 2 * si + 1, ctx.corner[1] + 2 * sj + 1, ctx.corner[2] + 2 * sk + 1)
 
 
 @wp.func
 def sub_range(ctx: BlockRows, lo: wp.vec3, hi: wp.vec3):
-    """Index range (i0, j0, k0, i1, j1, k1, 0, 0) of the sub-blocks whose ball
-    (tested as its bounding cube, as :func:`ball_meets_box` does) meets the
-    box [lo, hi], widened by 1e-3 cells: a sub-block left out provably sees
-    F = 0 of that node."""
+    """Index range (i0, j0, k0, i1, j1, k1, 0, 0) of the sub-blocks whose cube
+    meets the box [lo, hi], widened by 1e-3 cells: a sub-block left out
+    provably sees F = 0 of that node."""
     a = (lo - ctx.origin) / ctx.h
     b = (hi - ctx.origin) / ctx.h
     r = vec7()
     for d in range(3):
         c = float(ctx.corner[d]) + 1.0
-        r[d] = float(wp.max(int(wp.ceil(0.5 * (a[d] - _SUB_BALL - c) - 1.0e-3)), 0))
-        r[d + 3] = float(wp.min(int(wp.floor(0.5 * (b[d] + _SUB_BALL - c) + 1.0e-3)), _SSIDE - 1))
+        r[d] = float(wp.max(int(wp.ceil(0.5 * (a[d] - _SUB_HALF - c) - 1.0e-3)), 0))
+        r[d + 3] = float(wp.min(int(wp.floor(0.5 * (b[d] + _SUB_HALF - c) + 1.0e-3)), _SSIDE - 1))
     return r
 
 
@@ -852,8 +868,9 @@ def clear_bounds(ctx: BlockRows, row: int):
 @wp.func
 def bounds_leaf(m: ModelArrays, node: int, ctx: BlockRows):
     """Bounds rows: (F_min, F_max) of primitive ``node`` over each sub-block
-    ball in its range into the result slot ([0, inf) for a warp, as interval
-    mode); returns (range, result slot)."""
+    cube in its range (:func:`interval_primitive`'s cube bound) into the
+    result slot ([0, inf) for a warp, as interval mode); returns (range,
+    result slot)."""
     rg = sub_range(ctx, m.lower[node], m.upper[node])
     res = ctx.base + ctx.result * _BPOINTS
     warped = m.kind[node] >= K_TWIST
@@ -863,8 +880,7 @@ def bounds_leaf(m: ModelArrays, node: int, ctx: BlockRows):
                 j = (kk * _SSIDE + jj) * _SSIDE + ii
                 b = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 if not warped:
-                    c, rad = sub_block_ball(ctx, ii, jj, kk)
-                    b = interval_primitive(m, node, c, rad)
+                    b = interval_primitive(m, node, sub_block_center(ctx, ii, jj, kk), ctx.h * _SUB_BALL, ctx.h * _SUB_HALF)
                 ctx.rows[res + j] = b[0]
                 ctx.rows[res + _SUBS + j] = b[1]
     return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
@@ -943,7 +959,10 @@ def sub_bounds(ctx: BlockRows, r: vec7, j: int):
     return vec7()
 
 
-def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, _core: bool = False):
+def make_evaluate(
+    prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, _core: bool = False,
+    cube: bool = False,
+):  # fmt: skip
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
     Point mode (``interval`` False) returns (F, grad F, colour) at ``p``
@@ -952,6 +971,9 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
     ball of ``radius`` around ``p``: it always prunes (by ball-box overlap),
     treats a warp whose box meets the ball as unknown ([0, inf)), and visits
     the operands of a wide operator listed in the grid cells the ball overlaps.
+    With ``cube`` too, ``radius`` is the half side of an axis-aligned cube and
+    the bounds hold over the cube (:func:`interval_primitive`'s cube bound, as
+    the bounds rows of array mode compute them).
     """
     use_grid = prune
     # array mode walks the tree once per block, pruning like interval mode over
@@ -1051,7 +1073,10 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
                     if wp.static(bounds):
                         r = bounds_leaf(m, i, ctx)
                     elif wp.static(interval):
-                        r = interval_primitive(m, i, q, radius)
+                        if wp.static(cube):
+                            r = interval_primitive(m, i, q, radius * 1.7320509, radius)
+                        else:
+                            r = interval_primitive(m, i, q, radius, 0.0)
                     elif wp.static(array):
                         r = rows_leaf(m, i, ctx)
                     elif wp.static(derivatives):
@@ -1200,10 +1225,10 @@ def make_evaluate(prune: bool, interval: bool = False, derivatives: bool = True,
 
         @wp.func
         def evaluate_bounds(m: ModelArrays, ctx: BlockRows):
-            # the cube around the sub-block centres (corner + 1 ... corner + 7)
-            # grown by a sub-block ball: it meets every box a sub-block ball meets
+            # the block's cube (cells corner ... corner + 8) grown by 1e-4:
+            # it meets every box a sub-block's cube meets
             c = grid_point(ctx.origin, ctx.h, ctx.corner[0] + 4, ctx.corner[1] + 4, ctx.corner[2] + 4)
-            return traverse(m, c, ctx.h * (3.0 + _SUB_BALL) * 1.0001, 0, ctx)
+            return traverse(m, c, ctx.h * (3.0 + _SUB_HALF) * 1.0001, 0, ctx)
 
         return evaluate_bounds
     if array:

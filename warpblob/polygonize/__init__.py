@@ -3,13 +3,16 @@
 The pipeline is the GPU design of the thesis (SPEC 2.1) on a block-sparse
 grid, each stage a Warp kernel with at most one host sync:
 
-1. Empty-space rejection by interval bounds of the field over the balls of
+1. Empty-space rejection by interval bounds of the field over the cubes of
    8^3-cell blocks, then of their 2^3-cell sub-blocks. Exact for BlobTree
-   fields: a primitive's distance is 1-Lipschitz in its local frame and
-   every operator is monotone in its operands, so a ball whose bound
-   excludes the iso-value holds no surface; thin plates, tiny blobs and a
-   Difference's inner walls are never dropped (warps and sketched
-   primitives bound as unknown).
+   fields: a primitive's distance is 1-Lipschitz in its local frame (so it
+   varies by at most the cube's half diagonal), a distance to a convex
+   skeleton is convex (so it lies above its tangent plane at the cube's
+   centre, which bounds its minimum by the half side times the 1-norm of
+   its gradient), and every operator is monotone in its operands, so a cube
+   whose bound excludes the iso-value holds no surface; thin plates, tiny
+   blobs and a Difference's inner walls are never dropped (warps and
+   sketched primitives bound as unknown).
 2. Samples at the vertices next to undecided sub-blocks (array mode on the
    CPU: one tree walk per block).
 3. Crossed edges and cell configurations, prefix sums (``wp.utils.array_scan``).

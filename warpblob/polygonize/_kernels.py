@@ -198,7 +198,7 @@ def inside(v: float, iso: float):
 
 def make_kernels():
     """Build the polygonizer kernels (compiled once per process and device)."""
-    bound = make_evaluate(True, interval=True)
+    bound = make_evaluate(True, interval=True, cube=True)
     value = make_evaluate(True)
     value_only = make_evaluate(True, derivatives=False)
     block_value = make_evaluate(True, derivatives=False, array=True)
@@ -240,12 +240,12 @@ def make_kernels():
         block_states: wp.array(dtype=wp.int32),
     ):  # fmt: skip
         """A block is active (flag 1, state 0) unless every point of it is
-        provably inside (state 1) or outside (state 2)."""
+        provably inside (state 1) or outside (state 2), by bounds over its cube."""
         b = wp.tid() + offset
         c = block_coords(g, b)
         half = 0.5 * float(_BLOCK) * g.h
         center = g.origin + g.h * float(_BLOCK) * wp.vec3(float(c[0]), float(c[1]), float(c[2])) + wp.vec3(half)
-        r = bound(m, center, half * 1.7320509 * 1.0001)
+        r = bound(m, center, half * 1.0001)
         state = proven_side(r, iso)
         flags[b] = wp.where(state == 0, 1, 0)
         block_states[b] = state
@@ -272,7 +272,7 @@ def make_kernels():
             float(c[1] * _BLOCK + _SUB * sj) + half,
             float(c[2] * _BLOCK + _SUB * sk) + half,
         )
-        r = bound(m, g.origin + g.h * corner, half * g.h * 1.7320509 * 1.0001)
+        r = bound(m, g.origin + g.h * corner, half * g.h * 1.0001)
         state = proven_side(r, iso)
         states[tid] = state
 

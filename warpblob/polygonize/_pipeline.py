@@ -96,10 +96,10 @@ def polygonize(
     The pipeline follows the thesis' GPU design (SPEC 2.1) on a block-sparse
     grid: blocks of 8^3 cells are rejected when interval bounds of the field
     prove them to lie wholly inside or outside (exact: no surface is ever
-    dropped, see :func:`warpblob.field.bound_balls`); the remaining blocks are
+    dropped, see :func:`warpblob.field.bound_blocks`); the remaining blocks are
     sampled, crossed edges counted and prefix-summed (``wp.utils.array_scan``),
-    one vertex is placed per crossed edge by a bracketed root search
-    (Illinois) to ``|F - iso| <= tolerance``, with its normal from the
+    one vertex is placed per crossed edge by a bracketed Newton-Hermite
+    search to ``|F - iso| <= tolerance``, with its normal from the
     analytic gradient and its colour, and faces come from a generated table
     that resolves ambiguous faces by the asymptotic decider, so neighbouring
     cells always agree (no cracks). Each stage is a Warp kernel with at most
