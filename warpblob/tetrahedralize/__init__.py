@@ -13,15 +13,16 @@ size the next allocation):
    ``cellsize`` covers the model's box plus one empty cube: cube corners
    (black points) and cube centres (red points), long edges between points of
    one colour (length ``cellsize``), short edges from a centre to its cube's
-   corners. Interval bounds of the field (:func:`warpblob.field.bound_balls`'
-   traversal) over blocks of 8^3 cubes, then sub-blocks of 2^3 cubes, prove
+   corners. Interval bounds of the field over the cubes of blocks of 8^3
+   lattice cubes, then of sub-blocks of 2^3 (interval mode with its cube
+   bound, see :func:`warpblob.field.bound_blocks`), prove
    regions wholly outside (skipped) or wholly inside (filled with whole lattice
    tets without a single field evaluation).
 2. **Sampling.** ``F`` at the lattice points used by a tet of a sub-block that
    may hold surface; a stand-in value on the proven side elsewhere. Labels:
    ``+`` (``F > 0.5``), ``-`` (``F < 0.5``), ``0`` (``F = 0.5``).
 3. **Cut points.** On every lattice edge with a ``+`` and a ``-`` end, a root
-   found by the Illinois method on the edge's bracket to ``|F - 0.5| <= 1e-4``.
+   found by the bracketed Newton-Hermite search on the edge to ``|F - 0.5| <= 1e-4``.
    Each edge is owned by one lattice point; per-point bit masks and a prefix
    sum give each cut point its unique index (no hashing, no duplicates).
 4. **Warping.** A cut point *violates* a lattice point when it lies on one of

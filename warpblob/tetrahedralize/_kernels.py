@@ -29,7 +29,7 @@ _SUB_CELLS = wp.constant(SUB_CELLS)
 _TETS_PER_CELL = wp.constant(TETS_PER_CELL)
 _MAX_STENCIL = wp.constant(MAX_STENCIL)
 _SHORT = wp.constant(0.8660254037844386)  # short edge / long edge = sqrt(3) / 2
-_HALF_DIAGONAL = wp.constant(0.8660254037844386 * 1.0001)  # ball radius / box side, with margin
+_HALF_SIDE = wp.constant(0.5 * 1.0001)  # half side / box side, with margin
 
 MIXED = 0
 INSIDE = 1
@@ -128,7 +128,7 @@ def label_of(value: float, iso: float):
 
 def make_kernels():
     """Build the kernels that evaluate the field (compiled once per process and device)."""
-    bound = make_evaluate(True, interval=True)
+    bound = make_evaluate(True, interval=True, cube=True)
     value = make_evaluate(True)
     segment_root = make_segment_root(value)
 
@@ -138,7 +138,7 @@ def make_kernels():
         own tets reach at most one cube further along +x, +y, +z."""
         extent = float(side + 1) * l.h
         corner = l.origin + l.h * wp.vec3(float(first[0]), float(first[1]), float(first[2]))
-        r = bound(m, corner + wp.vec3(0.5 * extent), extent * _HALF_DIAGONAL)
+        r = bound(m, corner + wp.vec3(0.5 * extent), extent * _HALF_SIDE)
         state = _MIXED
         if r[0] > iso:
             state = _INSIDE
