@@ -715,14 +715,27 @@ def make_kernels():
                 break
             last += 1
         x0 = positions[v]
+        n = normals[v]
         acc = wp.vec3(0.0)
+        rise = float(0.0)
+        spread = float(0.0)
         for q in range(first, last):
             t = triangles[corner_triangle[q]]
-            acc = acc + positions[t[0]] + positions[t[1]] + positions[t[2]] - x0
-        centroid = acc / (2.0 * float(last - first))
-        n = normals[v]
+            for c in range(3):
+                e = positions[t[c]] - x0
+                en = wp.dot(e, n)
+                acc = acc + e
+                rise += en
+                spread += wp.dot(e, e) - en * en
+        centroid = x0 + acc / (2.0 * float(last - first))
         d = centroid - x0
-        r, x, count, ok = project(m, x0 + amount * (d - wp.dot(d, n) * n), iso, tolerance, 8, 0.5 * reach)
+        step = amount * (d - wp.dot(d, n) * n)
+        # the neighbours' mean height over the tangent plane, ~ kappa s^2 / 2, predicts
+        # where the surface is at the moved point (one Newton step fewer, usually)
+        bend = float(0.0)
+        if spread > 0.0:
+            bend = rise / spread * wp.dot(step, step)
+        r, x, count, ok = project(m, x0 + step + bend * n, iso, tolerance, 8, 0.5 * reach)
         if ok and wp.length(x - x0) <= reach:
             new_positions[v] = x
             new_normals[v] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
