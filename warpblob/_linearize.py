@@ -177,7 +177,8 @@ class LinearModel:
     (int32: row in the placed table for primitives and warps, grid index for
     wide operators, else -1), ``lower``/``upper`` (float32 (n, 3), box in the
     parent frame), ``params`` (float32 (n, 4); a wide operator keeps its
-    operand count in ``params[:, 1]``).
+    operand count in ``params[:, 1]``; an operator whose operands are all
+    primitives has ``params[:, 2]`` 1, a "flat" operator).
 
     Placed table (primitives and warps, length ``placed_count``): ``inverse``
     (float32 (m, 3, 4), parent frame to local), ``stretch`` (float32, the
@@ -341,6 +342,10 @@ def linearize(model: Node) -> LinearModel:
     upper = np.array([n.box[1] for n in nodes], dtype=np.float64)
     lower[empty], upper[empty] = 1.0, -1.0  # finite and empty
     params = np.array([n.params for n in nodes], dtype=np.float32)
+    for k, n in enumerate(nodes):
+        # an operator of primitives only: point evaluation folds them in one tight loop
+        if n.children and n.code not in _kinds.WARP_KINDS and all(c.code < _kinds.PRIMITIVE_KIND_END for c in n.children):
+            params[k, 2] = 1.0
     ref = np.full(count, -1, dtype=np.int32)
 
     placed = [k for k, n in enumerate(nodes) if n.inv is not None]

@@ -998,6 +998,48 @@ def make_evaluate(
 
     full = derivatives and not interval and not array
 
+    @wp.func(inline=True)
+    def flat_operand(m: ModelArrays, node: int, q: wp.vec3):
+        """Point mode: primitive ``node`` at ``q`` (0 outside its box when pruning)."""
+        if wp.static(prune):
+            if not inside_box(q, m.lower[node], m.upper[node]):
+                return vec7()
+        if wp.static(derivatives):
+            return evaluate_primitive(m, node, q)
+        return primitive_value(m, node, q)
+
+    @wp.func(inline=True)
+    def flat_operator(m: ModelArrays, node: int, q: wp.vec3):
+        """Point mode: an operator whose operands are all primitives, folded in
+        one loop instead of a descent and an ascent per operand; the same
+        operands in the same order through :func:`combine_kind` as the general
+        walk, so the result is bit-identical."""
+        kind = m.kind[node]
+        p0 = m.params[node][0]
+        acc = vec7()
+        gi = m.ref[node]
+        if wp.static(use_grid) and gi >= 0:
+            # wide: the operands listed in q's grid cell, the accumulator starting at 0
+            cc = grid_cell_of(m, gi, q)
+            dims = m.grid_dims[gi]
+            cidx = m.grid_base[gi] + (cc[2] * dims[1] + cc[1]) * dims[0] + cc[0]
+            c0 = m.cell_offsets[cidx]
+            c1 = m.cell_offsets[cidx + 1]
+            if c0 == c1:
+                return vec7()
+            for c in range(c0, c1):
+                acc = combine_kind(kind, p0, acc, flat_operand(m, m.cell_items[c], q), False)
+            return finalize_kind(kind, p0, acc)
+        c = node + 1
+        end = m.skip[node]
+        while c < end:
+            acc = combine_kind(kind, p0, acc, flat_operand(m, c, q), c == node + 1)
+            # an intersection that reached 0 stays 0 (every field is >= 0)
+            if wp.static(prune) and kind == K_INTERSECTION and acc[0] <= 0.0:
+                break
+            c = m.skip[c]
+        return finalize_kind(kind, p0, acc)
+
     @wp.func
     def get_slot(sv: vec_slots, sh: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
         if wp.static(ball):
@@ -1041,7 +1083,7 @@ def make_evaluate(
                         ctx.rows[res + j] = v
         return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
 
-    @wp.func
+    @wp.func(inline=True)
     def traverse(m: ModelArrays, p: wp.vec3, radius: float, root: int, ctx: BlockRows):
         sv = vec_slots()
         sh = vec_slots()
@@ -1099,6 +1141,9 @@ def make_evaluate(
                         saved[wsp] = q
                         q = warp_forward(m, i, q)
                         i = i + 1
+                elif wp.static(not spatial) and m.params[i][2] > 0.5:
+                    r = flat_operator(m, i, q)
+                    descending = False
                 elif wp.static(use_grid) and walks_grid(m, i, q, radius):
                     # wide sparse operator: visit the operands listed in the grid
                     # cell of q (point mode) or the cells the ball overlaps (interval)
@@ -1223,7 +1268,7 @@ def make_evaluate(
         return traverse
     if bounds:
 
-        @wp.func
+        @wp.func(inline=True)
         def evaluate_bounds(m: ModelArrays, ctx: BlockRows):
             # the block's cube (cells corner ... corner + 8) grown by 1e-4:
             # it meets every box a sub-block's cube meets
@@ -1233,14 +1278,14 @@ def make_evaluate(
         return evaluate_bounds
     if array:
 
-        @wp.func
+        @wp.func(inline=True)
         def evaluate_block(m: ModelArrays, ctx: BlockRows):
             c, half = block_center(ctx)
             return traverse(m, c, half, 0, ctx)
 
         return evaluate_block
 
-    @wp.func
+    @wp.func(inline=True)
     def evaluate(m: ModelArrays, p: wp.vec3, radius: float):
         return traverse(m, p, radius, 0, BlockRows())
 
