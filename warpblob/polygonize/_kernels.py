@@ -402,6 +402,7 @@ def make_kernels():
         samples: wp.array(dtype=wp.float32),
         block_map: wp.array(dtype=wp.int32),
         block_states: wp.array(dtype=wp.int32),
+        states: wp.array(dtype=wp.int32),
         table: wp.array2d(dtype=wp.int32),
         faces: wp.array(dtype=wp.vec4i),
         offset: int,
@@ -424,7 +425,11 @@ def make_kernels():
         entry = int(0)
         count = int(0)
         centres = int(0)
-        if gx < g.cells[0] and gy < g.cells[1] and gz < g.cells[2]:
+        # a cell of a proven sub-block has corners of one sign: nothing to count
+        proven = states[a * _SUBS + ((k // _SUB) * _SUB_SIDE + j // _SUB) * _SUB_SIDE + i // _SUB] != 0
+        if proven:
+            pass
+        elif gx < g.cells[0] and gy < g.cells[1] and gz < g.cells[2]:
             # a cell of the grid: its corners give the owned edges (corner 0 to 1, 2, 4) and its configuration
             vals = vec8()
             config = int(0)

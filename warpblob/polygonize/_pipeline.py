@@ -236,7 +236,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     launch(
         kernels["count"],
         n_cells,
-        [g, float(iso), active, samples, block_map, block_states, table, faces],
+        [g, float(iso), active, samples, block_map, block_states, states, table, faces],
         [edge_masks, vertex_counts, entries, triangle_counts, centre_counts],
         dev,
         threads,
