@@ -1357,7 +1357,7 @@ def make_segment_root(evaluate):
     gradient, colour); if ``max_iterations`` run out, the best point found.
     """
 
-    @wp.func
+    @wp.func(inline=True)
     def segment_root(
         m: ModelArrays,
         p0: wp.vec3,

@@ -205,7 +205,7 @@ def make_kernels():
     block_bounds = make_evaluate(True, interval=True, array=True)
     segment_root = make_segment_root(value)
 
-    @wp.func
+    @wp.func(inline=True)
     def project(m: ModelArrays, x0: wp.vec3, iso: float, tolerance: float, max_iterations: int, max_step: float):
         """Newton steps along the gradient from ``x0`` onto the surface, each at
         most ``max_step`` long: (evaluation r, its point, evaluations, whether
