@@ -69,6 +69,21 @@ def test_same_kind_operators_merge():
     assert lm.node_count == 6 and lm.evaluation_depth == 2 and lm.depth == 5
 
 
+def test_unions_and_intersections_of_one_operand_vanish():
+    """Union(a) and Intersection(a) are a, exactly: they leave the evaluation
+    tree (medusa has two such unions); a blend of one is kept (its colour is
+    its operand's divided by its own value, which rounds)."""
+    a = wb.Blend(wb.Point((0, 0, 0), 1.0), wb.Segment((0, 0, 0), (1, 0, 0), 0.5))
+    for wrapped in (wb.Union(a), wb.Intersection(wb.Union(a)), wb.Union(wb.Intersection(a)).translate((0.2, 0, 0))):
+        lm = wb.linearize(wrapped)
+        assert lm.node_count == 3 and lm.kind[0] == _kinds.BLEND
+    pts = np.random.default_rng(1).uniform(-1.5, 2.0, (2000, 3)).astype(np.float32)
+    for x, y in zip(wb.evaluate(wb.Union(a), pts), wb.evaluate(a, pts)):
+        assert np.array_equal(x, y)
+    assert wb.linearize(wb.Blend(a)).node_count == 3  # Blend(Blend(...)) merges; a lone Blend(point) stays
+    assert wb.linearize(wb.Blend(wb.Point((0, 0, 0), 1.0))).node_count == 2
+
+
 def test_links_are_consistent():
     lm = wb.linearize(wb.scenes.head())
     n = lm.node_count

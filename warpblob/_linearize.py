@@ -117,9 +117,19 @@ def _postorder(root: _ENode):
     return reversed(order)
 
 
+def _unwrap(n: _ENode) -> _ENode:
+    """A union or intersection of one operand is that operand (exactly: both
+    return it unchanged); a blend of one is kept (its colour is divided by
+    its own value, which rounds)."""
+    while n.code in (_kinds.UNION, _kinds.INTERSECTION) and len(n.children) == 1:
+        n = n.children[0]
+    return n
+
+
 def _finish(root: _ENode):
     """Operator boxes (from the reduced children), operand order, register need."""
     for n in _postorder(root):
+        n.children = [_unwrap(c) for c in n.children]
         if n.code < _kinds.PRIMITIVE_KIND_END or n.code in _kinds.WARP_KINDS:
             n.need = n.children[0].need if n.children else 0
             continue
@@ -314,6 +324,7 @@ def linearize(model: Node) -> LinearModel:
         return cached
     root = _reduce(model)
     _finish(root)
+    root = _unwrap(root)
     if root.need > SLOTS:
         raise ModelError(f"linearize: the model needs {root.need} registers, more than the {SLOTS} the kernels have")
     nesting = _warp_nesting(root)
