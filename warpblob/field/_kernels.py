@@ -505,6 +505,14 @@ def ball_meets_box(c: wp.vec3, rad: float, lo: wp.vec3, hi: wp.vec3):
 
 
 @wp.func
+def convex_skeleton(kind: int):
+    """Whether a primitive's skeleton is convex (its distance a convex function):
+    point, segment, disc, solid cone and box; not a ring, a polygon (which
+    may be concave) or the sketched primitives."""
+    return kind == K_POINT or kind == K_SEGMENT or kind == K_DISC or kind == K_CONE or kind == K_BOX
+
+
+@wp.func
 def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float, half: float):
     """(F_min, F_max) of primitive ``node`` over the ball of radius ``rad``
     around ``c``, or, when ``half`` > 0, over the axis-aligned cube of half
@@ -529,7 +537,7 @@ def interval_primitive(m: ModelArrays, node: int, c: wp.vec3, rad: float, half: 
     d = dg[0]
     slack = rad * m.stretch[r]
     near = wp.max(d - slack, 0.0)
-    if half > 0.0 and d > 0.0 and kind != K_RING and kind != K_POLYGON:
+    if half > 0.0 and d > 0.0 and convex_skeleton(kind):
         a = pull_gradient(inv, wp.vec3(dg[1], dg[2], dg[3]))
         near = wp.max(near, d - half * (wp.abs(a[0]) + wp.abs(a[1]) + wp.abs(a[2])))
     rr = m.radius[r]
@@ -960,8 +968,8 @@ def sub_bounds(ctx: BlockRows, r: vec7, j: int):
 
 
 def make_evaluate(
-    prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, _core: bool = False,
-    cube: bool = False,
+    prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, cube: bool = False,
+    _core: bool = False,
 ):  # fmt: skip
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
