@@ -967,6 +967,54 @@ def sub_bounds(ctx: BlockRows, r: vec7, j: int):
     return vec7()
 
 
+@wp.func
+def point_distance(x: wp.vec3, prm: wp.vec4):
+    """Distance to a point skeleton (as :func:`primitive_distance`, no gradient)."""
+    return wp.length(x)
+
+
+@wp.func
+def segment_distance(x: wp.vec3, prm: wp.vec4):
+    """Distance to a segment skeleton along local x of length ``prm[0]``."""
+    return wp.length(x - wp.vec3(wp.clamp(x[0], 0.0, prm[0]), 0.0, 0.0))
+
+
+@wp.func
+def box_distance(x: wp.vec3, prm: wp.vec4):
+    """Distance to a box skeleton of half sizes ``prm[0:3]`` (the sign
+    :func:`dist_box` applies does not change the length)."""
+    return wp.length(
+        wp.vec3(wp.max(wp.abs(x[0]) - prm[0], 0.0), wp.max(wp.abs(x[1]) - prm[1], 0.0), wp.max(wp.abs(x[2]) - prm[2], 0.0))
+    )
+
+
+def make_simple_rows(distance):
+    """Array mode for a simple skeleton: F at every point of the range ``rg``
+    of a block into row ``res``, branch-free so the compiler can vectorize the
+    innermost loop (values at unwanted points are computed and never read);
+    the same arithmetic as the general path, so the same values."""
+
+    @wp.func
+    def simple_rows(ctx: BlockRows, rg: vec7, res: int, inv: mat34, prm: wp.vec4, rad: float):
+        for kk in range(int(rg[2]), int(rg[5]) + 1):
+            for jj in range(int(rg[1]), int(rg[4]) + 1):
+                row = res + (kk * _BSIDE + jj) * _BSIDE
+                pz = ctx.origin[2] + ctx.h * float(ctx.corner[2] + kk)
+                py = ctx.origin[1] + ctx.h * float(ctx.corner[1] + jj)
+                for ii in range(int(rg[0]), int(rg[3]) + 1):
+                    px = ctx.origin[0] + ctx.h * float(ctx.corner[0] + ii)
+                    t = distance(apply_inverse(inv, wp.vec3(px, py, pz)), prm) / rad
+                    u = wp.max(1.0 - t * t, 0.0)
+                    ctx.rows[row + ii] = wp.where(t < 1.0, u * u * u, 0.0)
+
+    return simple_rows
+
+
+point_rows = make_simple_rows(point_distance)
+segment_rows = make_simple_rows(segment_distance)
+box_rows = make_simple_rows(box_distance)
+
+
 def make_evaluate(
     prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, cube: bool = False,
     _core: bool = False,
@@ -1076,6 +1124,17 @@ def make_evaluate(
         prm = m.params[node]
         start = m.data_start[r]
         rad = m.radius[r]
+        simple = True
+        if kind == K_POINT:
+            point_rows(ctx, rg, res, inv, prm, rad)
+        elif kind == K_SEGMENT:
+            segment_rows(ctx, rg, res, inv, prm, rad)
+        elif kind == K_BOX:
+            box_rows(ctx, rg, res, inv, prm, rad)
+        else:
+            simple = False
+        if simple:
+            return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
         for kk in range(int(rg[2]), int(rg[5]) + 1):
             for jj in range(int(rg[1]), int(rg[4]) + 1):
                 for ii in range(int(rg[0]), int(rg[3]) + 1):
