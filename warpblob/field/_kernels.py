@@ -988,6 +988,32 @@ def box_distance(x: wp.vec3, prm: wp.vec4):
     )
 
 
+@wp.func
+def cone_distance(x: wp.vec3, prm: wp.vec4):
+    """Distance to a solid cone skeleton (``prm``: length, ra, rb), the value
+    :func:`dist_cone` returns with the same arithmetic, its branches turned
+    into selections."""
+    length = prm[0]
+    ra = prm[1]
+    rb = prm[2]
+    rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
+    z = x[2]
+    p = wp.vec2(rho, z)
+    c = closest_on_segment2(p, wp.vec2(0.0, 0.0), wp.vec2(ra, 0.0))
+    best = wp.length_sq(p - c)
+    c2 = closest_on_segment2(p, wp.vec2(ra, 0.0), wp.vec2(rb, length))
+    d2 = wp.length_sq(p - c2)
+    c = wp.where(d2 < best, c2, c)
+    best = wp.where(d2 < best, d2, best)
+    c3 = closest_on_segment2(p, wp.vec2(rb, length), wp.vec2(0.0, length))
+    c = wp.where(wp.length_sq(p - c3) < best, c3, c)
+    v = p - c
+    radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
+    d = wp.length(wp.vec3(v[0] * radial[0], v[0] * radial[1], v[1]))
+    inside = z >= 0.0 and z <= length and rho <= ra + (rb - ra) * z / length
+    return wp.where(inside, 0.0, d)
+
+
 def make_simple_rows(distance):
     """Array mode for a simple skeleton: F at every point of the range ``rg``
     of a block into row ``res``, branch-free so the compiler can vectorize the
@@ -1013,6 +1039,7 @@ def make_simple_rows(distance):
 point_rows = make_simple_rows(point_distance)
 segment_rows = make_simple_rows(segment_distance)
 box_rows = make_simple_rows(box_distance)
+cone_rows = make_simple_rows(cone_distance)
 
 
 def make_evaluate(
@@ -1131,6 +1158,8 @@ def make_evaluate(
             segment_rows(ctx, rg, res, inv, prm, rad)
         elif kind == K_BOX:
             box_rows(ctx, rg, res, inv, prm, rad)
+        elif kind == K_CONE:
+            cone_rows(ctx, rg, res, inv, prm, rad)
         else:
             simple = False
         if simple:
