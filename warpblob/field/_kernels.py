@@ -130,26 +130,40 @@ def inside_box(p: wp.vec3, lo: wp.vec3, hi: wp.vec3):
 
 
 @wp.func
-def dist_cone(x: wp.vec3, length: float, ra: float, rb: float):
+def point_offset(x: wp.vec3, prm: wp.vec4):
+    """Vector from the nearest point of a point skeleton to ``x`` (local frame)."""
+    return x
+
+
+@wp.func
+def segment_offset(x: wp.vec3, prm: wp.vec4):
+    """Vector from the nearest point of a segment skeleton (local x, length ``prm[0]``)."""
+    return x - wp.vec3(wp.clamp(x[0], 0.0, prm[0]), 0.0, 0.0)
+
+
+@wp.func
+def cone_offset(x: wp.vec3, prm: wp.vec4):
+    """Vector from the nearest point of a solid cone skeleton (``prm``: length
+    along local z, radius ``ra`` at z = 0, ``rb`` at the top), 0 inside. The
+    branches are selections, so loops over points have none (array mode)."""
+    length = prm[0]
+    ra = prm[1]
+    rb = prm[2]
     rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
     z = x[2]
-    if z >= 0.0 and z <= length and rho <= ra + (rb - ra) * z / length:
-        return wp.vec4(0.0)
     p = wp.vec2(rho, z)
     c = closest_on_segment2(p, wp.vec2(0.0, 0.0), wp.vec2(ra, 0.0))
     best = wp.length_sq(p - c)
     c2 = closest_on_segment2(p, wp.vec2(ra, 0.0), wp.vec2(rb, length))
     d2 = wp.length_sq(p - c2)
-    if d2 < best:
-        best = d2
-        c = c2
+    c = wp.where(d2 < best, c2, c)
+    best = wp.where(d2 < best, d2, best)
     c3 = closest_on_segment2(p, wp.vec2(rb, length), wp.vec2(0.0, length))
-    d3 = wp.length_sq(p - c3)
-    if d3 < best:
-        c = c3
+    c = wp.where(wp.length_sq(p - c3) < best, c3, c)
     v = p - c
     radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
-    return dist_result(wp.vec3(v[0] * radial[0], v[0] * radial[1], v[1]))
+    inside = z >= 0.0 and z <= length and rho <= ra + (rb - ra) * z / length
+    return wp.where(inside, wp.vec3(0.0), wp.vec3(v[0] * radial[0], v[0] * radial[1], v[1]))
 
 
 @wp.func
@@ -179,13 +193,13 @@ def dist_polygon(x: wp.vec3, data: wp.array(dtype=wp.float32), start: int, n: in
 
 
 @wp.func
-def dist_box(x: wp.vec3, h: wp.vec3):
-    o = wp.vec3(
-        wp.max(wp.abs(x[0]) - h[0], 0.0) * wp.sign(x[0]),
-        wp.max(wp.abs(x[1]) - h[1], 0.0) * wp.sign(x[1]),
-        wp.max(wp.abs(x[2]) - h[2], 0.0) * wp.sign(x[2]),
+def box_offset(x: wp.vec3, prm: wp.vec4):
+    """Vector from the nearest point of a box skeleton (half sizes ``prm[0:3]``)."""
+    return wp.vec3(
+        wp.max(wp.abs(x[0]) - prm[0], 0.0) * wp.sign(x[0]),
+        wp.max(wp.abs(x[1]) - prm[1], 0.0) * wp.sign(x[1]),
+        wp.max(wp.abs(x[2]) - prm[2], 0.0) * wp.sign(x[2]),
     )
-    return dist_result(o)
 
 
 @wp.func
@@ -289,9 +303,9 @@ def dist_sweep(x: wp.vec3, data: wp.array(dtype=wp.float32), start: int):
 @wp.func
 def primitive_distance(kind: int, x: wp.vec3, prm: wp.vec4, data: wp.array(dtype=wp.float32), start: int):
     if kind == K_POINT:
-        return dist_result(x)
+        return dist_result(point_offset(x, prm))
     if kind == K_SEGMENT:
-        return dist_result(x - wp.vec3(wp.clamp(x[0], 0.0, prm[0]), 0.0, 0.0))
+        return dist_result(segment_offset(x, prm))
     if kind == K_DISC or kind == K_RING:
         rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
         dr = rho - prm[0]
@@ -303,11 +317,11 @@ def primitive_distance(kind: int, x: wp.vec3, prm: wp.vec4, data: wp.array(dtype
             radial = wp.vec3(x[0], x[1], 0.0) / rho
         return dist_result(wp.vec3(dr * radial[0], dr * radial[1], x[2]))
     if kind == K_CONE:
-        return dist_cone(x, prm[0], prm[1], prm[2])
+        return dist_result(cone_offset(x, prm))
     if kind == K_POLYGON:
         return dist_polygon(x, data, start, int(prm[0]))
     if kind == K_BOX:
-        return dist_box(x, wp.vec3(prm[0], prm[1], prm[2]))
+        return dist_result(box_offset(x, prm))
     if kind == K_INFLATE:
         return dist_inflate(x, prm[0], data, start)
     if kind == K_REVOLVE:
@@ -589,6 +603,16 @@ def grid_cell_of(m: ModelArrays, gi: int, x: wp.vec3):
         wp.clamp(int(wp.floor(c[1])), 0, dims[1] - 1),
         wp.clamp(int(wp.floor(c[2])), 0, dims[2] - 1),
     )
+
+
+@wp.func
+def cell_operands(m: ModelArrays, gi: int, q: wp.vec3):
+    """Range [first, end) in ``cell_items`` of the operands listed in the cell
+    of wide-operator grid ``gi`` that holds ``q``."""
+    cc = grid_cell_of(m, gi, q)
+    dims = m.grid_dims[gi]
+    cidx = m.grid_base[gi] + (cc[2] * dims[1] + cc[1]) * dims[0] + cc[0]
+    return wp.vec2i(m.cell_offsets[cidx], m.cell_offsets[cidx + 1])
 
 
 @wp.func
@@ -967,54 +991,7 @@ def sub_bounds(ctx: BlockRows, r: vec7, j: int):
     return vec7()
 
 
-@wp.func
-def point_distance(x: wp.vec3, prm: wp.vec4):
-    """Distance to a point skeleton (as :func:`primitive_distance`, no gradient)."""
-    return wp.length(x)
-
-
-@wp.func
-def segment_distance(x: wp.vec3, prm: wp.vec4):
-    """Distance to a segment skeleton along local x of length ``prm[0]``."""
-    return wp.length(x - wp.vec3(wp.clamp(x[0], 0.0, prm[0]), 0.0, 0.0))
-
-
-@wp.func
-def box_distance(x: wp.vec3, prm: wp.vec4):
-    """Distance to a box skeleton of half sizes ``prm[0:3]`` (the sign
-    :func:`dist_box` applies does not change the length)."""
-    return wp.length(
-        wp.vec3(wp.max(wp.abs(x[0]) - prm[0], 0.0), wp.max(wp.abs(x[1]) - prm[1], 0.0), wp.max(wp.abs(x[2]) - prm[2], 0.0))
-    )
-
-
-@wp.func
-def cone_distance(x: wp.vec3, prm: wp.vec4):
-    """Distance to a solid cone skeleton (``prm``: length, ra, rb), the value
-    :func:`dist_cone` returns with the same arithmetic, its branches turned
-    into selections."""
-    length = prm[0]
-    ra = prm[1]
-    rb = prm[2]
-    rho = wp.sqrt(x[0] * x[0] + x[1] * x[1])
-    z = x[2]
-    p = wp.vec2(rho, z)
-    c = closest_on_segment2(p, wp.vec2(0.0, 0.0), wp.vec2(ra, 0.0))
-    best = wp.length_sq(p - c)
-    c2 = closest_on_segment2(p, wp.vec2(ra, 0.0), wp.vec2(rb, length))
-    d2 = wp.length_sq(p - c2)
-    c = wp.where(d2 < best, c2, c)
-    best = wp.where(d2 < best, d2, best)
-    c3 = closest_on_segment2(p, wp.vec2(rb, length), wp.vec2(0.0, length))
-    c = wp.where(wp.length_sq(p - c3) < best, c3, c)
-    v = p - c
-    radial = safe_div3(wp.vec3(x[0], x[1], 0.0), rho)
-    d = wp.length(wp.vec3(v[0] * radial[0], v[0] * radial[1], v[1]))
-    inside = z >= 0.0 and z <= length and rho <= ra + (rb - ra) * z / length
-    return wp.where(inside, 0.0, d)
-
-
-def make_simple_rows(distance):
+def make_simple_rows(offset):
     """Array mode for a simple skeleton: F at every point of the range ``rg``
     of a block into row ``res``, branch-free so the compiler can vectorize the
     innermost loop (values at unwanted points are computed and never read);
@@ -1029,17 +1006,17 @@ def make_simple_rows(distance):
                 py = ctx.origin[1] + ctx.h * float(ctx.corner[1] + jj)
                 for ii in range(int(rg[0]), int(rg[3]) + 1):
                     px = ctx.origin[0] + ctx.h * float(ctx.corner[0] + ii)
-                    t = distance(apply_inverse(inv, wp.vec3(px, py, pz)), prm) / rad
+                    t = wp.length(offset(apply_inverse(inv, wp.vec3(px, py, pz)), prm)) / rad
                     u = wp.max(1.0 - t * t, 0.0)
                     ctx.rows[row + ii] = wp.where(t < 1.0, u * u * u, 0.0)
 
     return simple_rows
 
 
-point_rows = make_simple_rows(point_distance)
-segment_rows = make_simple_rows(segment_distance)
-box_rows = make_simple_rows(box_distance)
-cone_rows = make_simple_rows(cone_distance)
+point_rows = make_simple_rows(point_offset)
+segment_rows = make_simple_rows(segment_offset)
+box_rows = make_simple_rows(box_offset)
+cone_rows = make_simple_rows(cone_offset)
 
 
 def make_evaluate(
@@ -1103,14 +1080,10 @@ def make_evaluate(
         gi = m.ref[node]
         if wp.static(use_grid) and gi >= 0:
             # wide: the operands listed in q's grid cell, the accumulator starting at 0
-            cc = grid_cell_of(m, gi, q)
-            dims = m.grid_dims[gi]
-            cidx = m.grid_base[gi] + (cc[2] * dims[1] + cc[1]) * dims[0] + cc[0]
-            c0 = m.cell_offsets[cidx]
-            c1 = m.cell_offsets[cidx + 1]
-            if c0 == c1:
+            cells = cell_operands(m, gi, q)
+            if cells[0] == cells[1]:
                 return vec7()
-            for c in range(c0, c1):
+            for c in range(cells[0], cells[1]):
                 acc = combine_kind(kind, p0, acc, flat_operand(m, m.cell_items[c], q), False)
             return finalize_kind(kind, p0, acc)
         c = node + 1
@@ -1250,12 +1223,9 @@ def make_evaluate(
                         dims = m.grid_dims[gi]
                         first_op = next_ball_operand(m, gi, q, radius, (c0[2] * dims[1] + c0[1]) * dims[0] + c0[0], -1)
                     else:
-                        cc = grid_cell_of(m, gi, q)
-                        dims = m.grid_dims[gi]
-                        cidx = m.grid_base[gi] + (cc[2] * dims[1] + cc[1]) * dims[0] + cc[0]
-                        cfirst = m.cell_offsets[cidx]
-                        if cfirst < m.cell_offsets[cidx + 1]:
-                            first_op = wp.vec3i(m.cell_offsets[cidx + 1], cfirst + 1, m.cell_items[cfirst])
+                        cells = cell_operands(m, gi, q)
+                        if cells[0] < cells[1]:
+                            first_op = wp.vec3i(cells[1], cells[0] + 1, m.cell_items[cells[0]])
                     if first_op[2] >= 0:
                         sp += 1
                         sv[sp] = 0.0
