@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from .._device import resolve_device
 from .._errors import WarpblobError
 from .._linearize import LinearModel, linearize
 from .._parallel import launch
 from . import _kernels
 
 __all__ = [
-    "field", "gradient", "color", "evaluate", "bound_balls", "bound_blocks", "grid_field", "model_arrays", "resolve_device",
+    "field", "gradient", "color", "evaluate", "bound_balls", "bound_blocks", "grid_field", "model_arrays",
 ]  # fmt: skip
 
 _KERNELS: dict = {}
@@ -148,14 +149,6 @@ def _as_points(points, device):
         raise WarpblobError(f"points: must be finite, got {arr[bad[0]].tolist()} at row {bad[0]}")
     device = resolve_device(device)
     return wp.array(np.ascontiguousarray(arr), dtype=wp.vec3, device=device), device, True
-
-
-def resolve_device(device):
-    """The Warp device for ``device`` (name, Device or None), or WarpblobError."""
-    try:
-        return wp.get_device(device)
-    except (ValueError, RuntimeError, TypeError) as exc:
-        raise WarpblobError(f"device {device!r} is not available: {exc}") from None
 
 
 def evaluate(model, points, *, device=None, derivatives: bool = True, prune: bool = True, threads: int | None = None):

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
+from .._device import resolve_device
 from .._parallel import launch
 from ._tetmesh import TET_EDGES_WP, TET_FACES_WP
 
@@ -228,7 +229,6 @@ def quality(tetmesh: TetMesh, *, device=None, threads: int | None = None) -> Tet
         >>> round(q.dihedral_min, 4), round(q.aspect_ratio_min, 6), q.inverted_count
         (70.5288, 1.0, 0)
     """
-    from ..field._engine import resolve_device
 
     dev = resolve_device(device)
     n = tetmesh.tet_count

@@ -42,6 +42,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from .._device import resolve_device
 from .._errors import WarpblobError
 from .._parallel import launch
 from .._stages import mark_heads_kernel
@@ -630,7 +631,6 @@ class TetStructure:
         Raises:
             WarpblobError: a face is shared by more than two tets.
         """
-        from ..field._engine import resolve_device
 
         start = time.perf_counter()
         dev = resolve_device(device)
@@ -693,7 +693,6 @@ class TetStructure:
         Drops the Python-side record of incidences added since the last
         rebuild. :meth:`collect_garbage` and :meth:`to_warp` call it as needed.
         """
-        from ..field._engine import resolve_device
 
         self._rebuild(resolve_device(device), threads)
 
@@ -857,7 +856,6 @@ class TetStructure:
 
     def find_edges(self, pairs, *, device=None, threads: int | None = None) -> np.ndarray:
         """Batch :meth:`find_edge` in a kernel: (M, 2) node pairs -> (M,) int32 edges, -1 where none."""
-        from ..field._engine import resolve_device
 
         pairs = np.ascontiguousarray(pairs, dtype=np.int32).reshape(-1, 2)
         dev = resolve_device(device)
@@ -1334,7 +1332,6 @@ class TetStructure:
 
     def to_warp(self, device=None) -> TetStructureArrays:
         """The structure's arrays on ``device`` as a :class:`TetStructureArrays` (links rebuilt first if needed)."""
-        from ..field._engine import resolve_device
 
         dev = resolve_device(device)
         if self._links_dirty:

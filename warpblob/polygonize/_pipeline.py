@@ -10,7 +10,8 @@ from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory
 from .._stages import compact_kernel
 from .._linearize import linearize
 from .._parallel import launch
-from ..field._engine import block_chunk, launch_blocks, model_arrays, resolve_device
+from .._device import resolve_device
+from ..field._engine import block_chunk, launch_blocks, model_arrays
 from ..mesh import SurfaceMesh
 from ..tree import ISO_VALUE
 from . import _kernels, _tables

@@ -9,7 +9,8 @@ from .._errors import ResourceError, WarpblobError
 from .._linearize import linearize
 from .._parallel import launch
 from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
-from ..field._engine import model_arrays, resolve_device
+from .._device import resolve_device
+from ..field._engine import model_arrays
 from ..mesh._tetmesh import TetMesh
 from ..tree import ISO_VALUE
 from . import _graded, _kernels, _tables
