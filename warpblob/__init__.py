@@ -17,7 +17,7 @@ if not _os.environ.get("WARPBLOB_VERBOSE"):
     _wp.config.log_level = 30
 
 from . import scenes  # noqa: E402
-from ._errors import ModelError, ResourceError, SceneError, WarpblobError
+from ._errors import MeshError, ModelError, ResourceError, SceneError, SimulationError, WarpblobError
 from ._linearize import LinearModel, linearize
 from ._parallel import set_thread_count, thread_count
 from .field import color, evaluate, field, gradient
@@ -69,6 +69,8 @@ __all__ = [
     "ModelError",
     "SceneError",
     "ResourceError",
+    "MeshError",
+    "SimulationError",
     "ISO_VALUE",
     "ISO_DISTANCE",
     "Node",

@@ -1,6 +1,6 @@
 """Exception types raised by warpblob at its Python boundary."""
 
-__all__ = ["WarpblobError", "ModelError", "SceneError", "ResourceError"]
+__all__ = ["WarpblobError", "ModelError", "SceneError", "ResourceError", "MeshError", "SimulationError"]
 
 
 class WarpblobError(Exception):
@@ -17,3 +17,11 @@ class SceneError(WarpblobError, ValueError):
 
 class ResourceError(WarpblobError, MemoryError):
     """A request would need more memory than is available."""
+
+
+class MeshError(WarpblobError, ValueError):
+    """A mesh is not what an operation needs (open, non-manifold, inverted, wrong shapes)."""
+
+
+class SimulationError(WarpblobError, ValueError):
+    """A simulation got a bad parameter or mesh, or a step diverged."""
