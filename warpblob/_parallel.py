@@ -12,11 +12,12 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import warp as wp
 
 from ._errors import WarpblobError
 
-__all__ = ["launch", "thread_count", "set_thread_count"]
+__all__ = ["launch", "thread_count", "set_thread_count", "check_threads"]
 
 _threads: int | None = None
 _pool: ThreadPoolExecutor | None = None
@@ -41,12 +42,23 @@ def thread_count() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+def check_threads(threads, name: str = "threads") -> int | None:
+    """``threads`` if it is None or a positive integer, else WarpblobError naming the value.
+
+    Every public function taking ``threads=`` calls this at its boundary, so a
+    0 or -1 is refused the same way ``set_thread_count`` refuses it.
+    """
+    if threads is None:
+        return None
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise WarpblobError(f"{name} must be a positive integer or None, got {threads!r}")
+    return int(threads)
+
+
 def set_thread_count(n: int | None) -> None:
     """Set the CPU thread count (``None`` restores the default)."""
     global _threads
-    if n is not None and (not isinstance(n, int) or n < 1):
-        raise WarpblobError(f"thread count must be a positive integer, got {n!r}")
-    _threads = n
+    _threads = check_threads(n, "thread count")
 
 
 def _executor(n: int) -> ThreadPoolExecutor:
