@@ -1,7 +1,19 @@
-"""Helpers shared by the benchmark scripts: timing, tables, JSON results."""
+"""Helpers shared by the benchmark scripts: whole-call timing, machine load, sizes, tables, JSON results.
+
+How every benchmark times (warpblob and its peers alike): the wall clock
+(``time.perf_counter``) around one whole public call, model or points in,
+result out; warm (one call first, not timed: compilation, caches, first-touch
+memory); the best of ``--repeat`` calls. warpblob's own ``stats`` (seconds per
+stage) are kept beside it as the breakdown of the fastest call, never in its
+place. Timings taken on a busy machine are slow by an unknown factor, so each
+run records the load average (``os.getloadavg``) before and after, prints it,
+and writes it into its JSON.
+"""
 
 from __future__ import annotations
 
+import argparse
+import datetime
 import json
 import os
 import platform
@@ -9,15 +21,33 @@ import time
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
+#: how the figures were taken, written into every JSON
+TIMING = "wall clock (time.perf_counter) around each whole call; warm (a first call excluded); best of N = repeat"
+#: a 1-minute load average above this is noted as a busy machine (runnable processes besides the benchmark)
+BUSY_LOAD = 0.5
 
-def best_of(fn, repeat: int = 3) -> float:
-    """Smallest wall time of ``repeat`` calls of ``fn`` (seconds); call ``fn`` once before to warm up."""
-    best = float("inf")
-    for _ in range(repeat):
+
+def wall_time(fn, repeat: int = 3):
+    """Time whole calls of ``fn`` by the wall clock: one warm-up call, then the best of ``repeat``.
+
+    Returns:
+        ``(seconds, result)``: the smallest wall time of the timed calls and what
+        that fastest call returned (its ``stats`` are the breakdown of the time).
+    """
+    fn()
+    best, result = float("inf"), None
+    for _ in range(max(1, repeat)):
         t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+        out = fn()
+        seconds = time.perf_counter() - t0
+        if seconds < best:
+            best, result = seconds, out
+    return best, result
+
+
+def load_average() -> list[float]:
+    """Runnable processes averaged over the last 1, 5 and 15 minutes (``os.getloadavg``)."""
+    return [round(v, 2) for v in os.getloadavg()]
 
 
 def machine() -> dict:
@@ -32,6 +62,69 @@ def machine() -> dict:
     }
 
 
+def arguments(ap: argparse.ArgumentParser, full: dict, quick: dict, argv=None) -> argparse.Namespace:
+    """Parse ``argv`` with ``--quick``, ``--repeat`` and ``--json`` added; an option left unset
+    takes its value from ``quick`` (small sizes, a smoke run under a minute) or ``full``."""
+    ap.add_argument("--quick", action="store_true", help="small sizes: a smoke run of under a minute")
+    repeat = f"timed calls per figure, the best taken (default {full['repeat']}, quick {quick['repeat']})"
+    ap.add_argument("--repeat", type=int, help=repeat)
+    ap.add_argument("--json", help="results file (default benchmarks/results/bench_<name>.json; quick runs: none)")
+    args = ap.parse_args(argv)
+    for key, value in (quick if args.quick else full).items():
+        if getattr(args, key, None) is None:
+            setattr(args, key, value)
+    return args
+
+
+class Run:
+    """One benchmark run: prints its title and the load, then writes the JSON with machine and load.
+
+    Args:
+        name: the benchmark's name (``results/bench_<name>.json``).
+        title: the line printed first.
+        args: the parsed options (:func:`arguments`).
+    """
+
+    def __init__(self, name: str, title: str, args: argparse.Namespace):
+        self.name, self.args = name, args
+        self.started = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+        self._t0 = time.perf_counter()
+        self.load_before = load_average()
+        print(f"{title}{' (quick)' if args.quick else ''}")
+        print(f"timing: {TIMING} = {args.repeat}")
+        _print_load("before", self.load_before)
+
+    def finish(self, payload: dict) -> str | None:
+        """Print the load after the run and write ``payload`` with the run's facts; the path written, if any."""
+        load_after = load_average()
+        _print_load("after", load_after)
+        path = self.args.json or (None if self.args.quick else os.path.join(RESULTS, f"bench_{self.name}.json"))
+        if path is None:
+            print("quick run: no JSON written (pass --json PATH to write one)")
+            return None
+        record = {
+            "benchmark": self.name,
+            "quick": bool(self.args.quick),
+            "timing": TIMING,
+            "repeat": self.args.repeat,
+            "started": self.started,
+            "run_seconds": time.perf_counter() - self._t0,
+            "load_average_before": self.load_before,
+            "load_average_after": load_after,
+            "machine": machine(),
+            **payload,
+        }
+        write_json(path, record)
+        print(f"wrote {path}")
+        return path
+
+
+def _print_load(when: str, load: list[float]) -> None:
+    note = f"  (busy: over {BUSY_LOAD}, other work competes for the cores)" if load[0] > BUSY_LOAD else ""
+    text = " ".join(f"{v:.2f}" for v in load)
+    print(f"load average {when} (1, 5, 15 min): {text} on {os.cpu_count()} cores{note}", flush=True)
+
+
 def table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
     """Plain-text table: columns are ``(key, header, format)``."""
     cells = [[h for _, h, _ in columns]]
@@ -43,12 +136,11 @@ def table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
     return "\n".join(lines)
 
 
-def write_json(name: str, payload: dict) -> str:
-    os.makedirs(RESULTS, exist_ok=True)
-    path = os.path.join(RESULTS, name)
+def write_json(path: str, payload: dict) -> None:
+    """Write ``payload`` to ``path`` atomically (a reader never sees half a file)."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     tmp = path + ".tmp"
     with open(tmp, "w") as f:
         json.dump(payload, f, indent=2)
         f.write("\n")
     os.replace(tmp, path)
-    return path

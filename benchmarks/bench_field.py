@@ -1,12 +1,15 @@
 """Field-engine benchmark: every reference model, pruned vs full traversal vs numpy, 1 vs 2 threads.
 
-Run:  python benchmarks/bench_field.py [--points 1000000] [--models tumor,towers]
+Run:  python benchmarks/bench_field.py [--points 1000000] [--models tumor,towers] [--repeat 3] [--quick]
 
-All timings are warm: every kernel is compiled and run once before timing, and
-each figure is the best of three runs. The full traversal and the numpy
-reference evaluator visit every node for every point, so they are timed on a
-subset of the points (``--slow-points``) and reported as points per second.
-Writes benchmarks/results/bench_field.json.
+Each figure times whole calls of ``warpblob.field`` (numpy points in, numpy
+values out) by the wall clock, warm (a first call excluded), best of
+``--repeat`` (see ``benchmarks/_common.py``). The full traversal and the
+numpy reference evaluator visit every node for every point, so they are timed
+on a subset of the points (``--slow-points``, ``--numpy-points``) and every
+figure is reported as points per second. ``--quick``: 10^5 points, three
+models. Writes benchmarks/results/bench_field.json with the load average
+before and after.
 """
 
 from __future__ import annotations
@@ -21,13 +24,13 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
 
 import warpblob as wb  # noqa: E402
-from _common import best_of, machine, table, write_json  # noqa: E402
+from _common import Run, arguments, table, wall_time  # noqa: E402
 from reference import reference_evaluate  # noqa: E402
 
 THESIS_BYTES = {"per_primitive": 96 + 48, "per_operator": 64}
 
 
-def run(models, n_points: int, n_slow: int, n_numpy: int) -> list[dict]:
+def run(models, n_points: int, n_slow: int, n_numpy: int, repeat: int) -> list[dict]:
     rng = np.random.default_rng(1)
     rows = []
     for name in models:
@@ -36,12 +39,10 @@ def run(models, n_points: int, n_slow: int, n_numpy: int) -> list[dict]:
         lo, hi = lm.bounds
         pts = rng.uniform(lo, hi, (n_points, 3)).astype(np.float32)
         slow = pts[:n_slow]
-        for prune, threads in ((True, 1), (True, 2), (False, 2)):
-            wb.field(lm, pts[:4096], prune=prune, threads=threads)  # compile and warm up
-        t_pruned_1 = best_of(lambda: wb.field(lm, pts, threads=1))
-        t_pruned_2 = best_of(lambda: wb.field(lm, pts, threads=2))
-        t_full_2 = best_of(lambda: wb.field(lm, slow, prune=False, threads=2), repeat=1)
-        t_numpy = best_of(lambda: reference_evaluate(model, pts[:n_numpy].astype(np.float64)), repeat=1)
+        t_pruned_1, _ = wall_time(lambda: wb.field(lm, pts, threads=1), repeat)
+        t_pruned_2, _ = wall_time(lambda: wb.field(lm, pts, threads=2), repeat)
+        t_full_2, _ = wall_time(lambda: wb.field(lm, slow, prune=False, threads=2), repeat)
+        t_numpy, _ = wall_time(lambda: reference_evaluate(model, pts[:n_numpy].astype(np.float64)), repeat)
         assert np.array_equal(wb.field(lm, slow), wb.field(lm, slow, prune=False)), name
         part = lm.nbytes_by_part()
         row = {
@@ -65,16 +66,21 @@ def run(models, n_points: int, n_slow: int, n_numpy: int) -> list[dict]:
     return rows
 
 
+FULL = {"points": 1_000_000, "slow_points": 20_000, "numpy_points": 20_000, "models": ",".join(wb.scenes.ALL),
+        "repeat": 3}  # fmt: skip
+QUICK = {"points": 100_000, "slow_points": 2_000, "numpy_points": 2_000, "models": "peanut,tumor,cake", "repeat": 2}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--points", type=int, default=1_000_000, help="points per model (default 10^6)")
-    ap.add_argument("--slow-points", type=int, default=20_000, help="points for the full traversal")
-    ap.add_argument("--numpy-points", type=int, default=20_000, help="points for the numpy evaluator")
-    ap.add_argument("--models", default=",".join(wb.scenes.ALL), help="comma-separated scene names")
-    args = ap.parse_args(argv)
+    ap.add_argument("--points", type=int, help="points per model (default 10^6)")
+    ap.add_argument("--slow-points", type=int, help="points for the full traversal (default 20000)")
+    ap.add_argument("--numpy-points", type=int, help="points for the numpy evaluator (default 20000)")
+    ap.add_argument("--models", help="comma-separated scene names (default all)")
+    args = arguments(ap, FULL, QUICK, argv)
     models = [m for m in args.models.split(",") if m]
-    print(f"field benchmark, {args.points} random points per model in its box, warm, best of 3")
-    rows = run(models, args.points, args.slow_points, args.numpy_points)
+    bench = Run("field", f"field benchmark, {args.points} random points per model in its box", args)
+    rows = run(models, args.points, args.slow_points, args.numpy_points, args.repeat)
     cols = [
         ("model", "model", "s"),
         ("primitives", "prims", "d"),
@@ -94,20 +100,15 @@ def main(argv=None):
         f"bytes per primitive / operator: thesis GPU layout {THESIS_BYTES['per_primitive']} B "
         f"(96 B + 48 B inverse matrix) / {THESIS_BYTES['per_operator']} B"
     )
-    path = write_json(
-        "bench_field.json",
+    bench.finish(
         {
-            "benchmark": "field",
-            "warm": True,
             "points": args.points,
             "slow_points": args.slow_points,
             "numpy_points": args.numpy_points,
-            "machine": machine(),
             "thesis_bytes": THESIS_BYTES,
             "rows": rows,
-        },
+        }
     )
-    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

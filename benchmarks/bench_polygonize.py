@@ -1,6 +1,7 @@
 """Polygonization benchmark: model in, mesh out, warpblob vs Warp's extractors and VTK.
 
-Run:  python benchmarks/bench_polygonize.py [--models tumor,mug,medusa,towers] [--cellsizes 0.14,0.1,0.05]
+Run:  python benchmarks/bench_polygonize.py [--models tumor,mug,medusa,towers] [--cellsizes 0.14,0.1,0.05,0.03]
+      [--repeat 3] [--quick]
 
 Peers, all fed the same model through warpblob's own field kernel on the same
 grid (origin at the model box minus half a cell):
@@ -22,12 +23,17 @@ sub-unit-weighted sum) adds them. For wide operators only operands whose
 supports overlap matter, so the sum is taken per grid cell of the operator
 and the largest cell sum is used. Models with warps are not benchmarked here.
 
-Timings are warm (every kernel compiled and run once first), best of three;
-dense peers include the dense field evaluation; warpblob runs with its
-defaults (vertices refined to |F - 0.5| <= 1e-4, skinny triangles relaxed).
-Triangle quality: the share of triangles with a smallest angle under 10
-degrees, warpblob against Warp's IsoSurfaceMarchingCubes on the same grid. Writes
-benchmarks/results/bench_polygonize.json.
+Every tool is timed the same way: the wall clock around its whole call,
+model in, triangles out (dense peers include the dense field evaluation),
+warm (a first call excluded: compilation), best of ``--repeat`` (see
+``benchmarks/_common.py``); warpblob's ``stats`` seconds per stage of its
+fastest call are kept as the breakdown. warpblob runs with its defaults
+(vertices refined to |F - 0.5| <= 1e-4, skinny triangles relaxed). A peer
+whose package is missing is skipped with a note. Triangle quality: the share
+of triangles with a smallest angle under 10 degrees, warpblob against Warp's
+IsoSurfaceMarchingCubes on the same grid. ``--quick``: tumor and mug at 0.14
+and 0.1. Writes benchmarks/results/bench_polygonize.json with the load
+average before and after.
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import warpblob as wb  # noqa: E402
 from warpblob.field import grid_field  # noqa: E402
-from _common import best_of, machine, table, write_json  # noqa: E402
+from _common import Run, arguments, table, wall_time  # noqa: E402
 from warpblob.mesh._surface import triangle_min_angles  # noqa: E402
 from warpblob.tree import _kinds  # noqa: E402
 
@@ -99,10 +105,11 @@ def skinny_share(vertices, faces) -> float:
 
 
 def run_warpblob(lm, h, quality=None):
+    """(triangles, field and interval evaluations, stats) of one whole ``wb.polygonize`` call."""
     mesh = wb.polygonize(lm, cellsize=h)
     if quality is not None:
         quality["warpblob"] = skinny_share(mesh.vertices, mesh.faces)
-    return mesh.face_count, mesh.stats["field_evaluations"] + mesh.stats["interval_evaluations"]
+    return mesh.face_count, mesh.stats["field_evaluations"] + mesh.stats["interval_evaluations"], mesh.stats
 
 
 def run_sparse(lm, h, lip):
@@ -118,7 +125,7 @@ def run_sparse(lm, h, lip):
         fn, int(nodes[0]), int(nodes[1]), int(nodes[2]), lower=tuple(lo), upper=tuple(hi), threshold=0.5,
         lipschitz_bound=lip,
     )  # fmt: skip
-    return faces.shape[0] // 3, count[0]
+    return faces.shape[0] // 3, count[0], None
 
 
 def run_dense_warp(lm, h, quality=None):
@@ -129,7 +136,7 @@ def run_dense_warp(lm, h, quality=None):
     mc.surface(wp.array(f, dtype=wp.float32), 0.5)
     if quality is not None:
         quality["dense_warp_mc"] = skinny_share(mc.verts.numpy(), mc.indices.numpy().reshape(-1, 3))
-    return mc.indices.shape[0] // 3, int(np.prod(nodes))
+    return mc.indices.shape[0] // 3, int(np.prod(nodes)), None
 
 
 def run_dense_vtk(lm, h):
@@ -140,18 +147,22 @@ def run_dense_vtk(lm, h):
     img = pv.ImageData(dimensions=tuple(int(n) for n in nodes), spacing=(h, h, h), origin=tuple(lo))
     img.point_data["F"] = f.ravel(order="F")
     surf = img.contour([0.5], scalars="F", method="flying_edges")
-    return surf.n_cells, int(np.prod(nodes))
+    return surf.n_cells, int(np.prod(nodes)), None
+
+
+FULL = {"models": "tumor,mug,medusa,towers", "cellsizes": "0.14,0.1,0.05,0.03", "repeat": 3}
+QUICK = {"models": "tumor,mug", "cellsizes": "0.14,0.1", "repeat": 2}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", default="tumor,mug,medusa,towers")
-    ap.add_argument("--cellsizes", default="0.14,0.1,0.05")
+    ap.add_argument("--models", help=f"comma-separated scene names (default {FULL['models']})")
+    ap.add_argument("--cellsizes", help=f"comma-separated (default {FULL['cellsizes']})")
     ap.add_argument("--skip-dense-above", type=float, default=4e7, help="skip dense peers above this many nodes")
-    args = ap.parse_args(argv)
+    args = arguments(ap, FULL, QUICK, argv)
     cellsizes = [float(c) for c in args.cellsizes.split(",")]
     rows = []
-    print("polygonization benchmark: model in, mesh out, warm, best of 3, seconds")
+    bench = Run("polygonize", "polygonization benchmark: model in, mesh out, seconds", args)
     for name in args.models.split(","):
         lm = wb.linearize(wb.scenes.ALL[name]())
         lip = lipschitz_bound(lm)
@@ -174,24 +185,35 @@ def main(argv=None):
             for key, fn in peers.items():
                 if fn is None:
                     continue
-                tris, evals = fn()  # warm up (compilation) and counts
-                row[f"{key}_s"] = best_of(fn)
+                try:
+                    seconds, (tris, evals, stats) = wall_time(fn, args.repeat)
+                except ImportError as err:
+                    print(f"  {name} h={h}: {key} skipped ({err})", flush=True)
+                    continue
+                row[f"{key}_s"] = seconds
                 row[f"{key}_tris"] = tris
                 row[f"{key}_fvept"] = evals / max(tris, 1)
-            fastest_peer = min(row[f"{k}_s"] for k in ("sparse_mc", "dense_warp_mc", "dense_vtk_fe") if f"{k}_s" in row)
-            row["speedup_vs_fastest_peer"] = fastest_peer / row["warpblob_s"]
+                if stats is not None:
+                    row[f"{key}_stats_seconds"] = stats["seconds"]
+                    row[f"{key}_stats_total_s"] = stats["total_seconds"]
+            peer_seconds = [row[f"{k}_s"] for k in ("sparse_mc", "dense_warp_mc", "dense_vtk_fe") if f"{k}_s" in row]
+            row["speedup_vs_fastest_peer"] = min(peer_seconds) / row["warpblob_s"] if peer_seconds else None
             if name == "medusa" and h in THESIS_MEDUSA_MS:
                 row["thesis_1core_avx_s"] = THESIS_MEDUSA_MS[h] / 1000.0
             rows.append(row)
-            print(f"  {name} h={h}: warpblob {row['warpblob_s']:.3f} s, x{row['speedup_vs_fastest_peer']:.1f} vs fastest peer", flush=True)
+            speedup = row["speedup_vs_fastest_peer"]
+            versus = "" if speedup is None else f", x{speedup:.1f} vs fastest peer"
+            stages = f"stages {row['warpblob_stats_total_s']:.3f} s"
+            print(f"  {name} h={h}: warpblob {row['warpblob_s']:.3f} s ({stages}){versus}", flush=True)
     cols = [("model", "model", "s"), ("cellsize", "h", ".2f")]
-    for key, label in (("warpblob", "wb"), ("sparse_mc", "sparseMC"), ("dense_warp_mc", "warpMC"), ("dense_vtk_fe", "vtkFE")):
+    labels = {"warpblob": "wb", "sparse_mc": "sparseMC", "dense_warp_mc": "warpMC", "dense_vtk_fe": "vtkFE"}
+    for key, label in labels.items():
         cols += [(f"{key}_s", f"{label} s", ".3f"), (f"{key}_fvept", f"{label} FVEPT", ".1f")]
-    cols += [("warpblob_tris", "wb tris", "d"), ("speedup_vs_fastest_peer", "speedup", ".1f"), ("thesis_1core_avx_s", "thesis s", ".3f")]
+    cols += [("warpblob_tris", "wb tris", "d"), ("speedup_vs_fastest_peer", "speedup", ".1f")]
+    cols += [("thesis_1core_avx_s", "thesis s", ".3f")]
     cols += [("warpblob_skinny", "wb <10deg", ".3f"), ("dense_warp_mc_skinny", "warpMC <10deg", ".3f")]
     print(table(rows, cols))
-    path = write_json("bench_polygonize.json", {"benchmark": "polygonize", "warm": True, "machine": machine(), "rows": rows})
-    print(f"wrote {path}")
+    bench.finish({"rows": rows})
 
 
 if __name__ == "__main__":

@@ -1,14 +1,14 @@
 """Tetrahedral meshing benchmark: warpblob's isosurface stuffing vs fTetWild and TetGen.
 
 Run:  python benchmarks/bench_tetrahedralize.py [--models tumor,peanut,cake,three_slabs] [--cellsize 0.1]
-      [--peers pytetwild,tetgen]
+      [--peers pytetwild,tetgen] [--repeat 3] [--quick]
 
 warpblob goes model in, mesh out (field evaluation included). The peers mesh
 warpblob's own polygonized surface of the same model at the same cellsize
 (``warpblob.polygonize``, a closed manifold); their seconds exclude the
 polygonization (reported apart, it is milliseconds). Each peer is tuned to
 about warpblob's node count: one run with a first guess of its size
-parameter, then one timed run with the parameter scaled by the cube root of
+parameter, then the timed runs with the parameter scaled by the cube root of
 the node-count ratio.
 
 * ``pytetwild`` (fTetWild, MPL-2.0): ``edge_length_abs``, first guess the cellsize;
@@ -19,13 +19,17 @@ the node-count ratio.
   its boundary tets can be slivers and its node count has a floor set by the
   surface (the table shows what it reached).
 
-Peer tets are reoriented to positive volume before measuring (conventions
-differ). Every mesh gets the thesis' measures (SPEC 3): counts, min/max
+A peer that is not installed is skipped with a note. Peer tets are
+reoriented to positive volume before measuring (conventions differ); that is
+not timed. Every mesh gets the thesis' measures (SPEC 3): counts, min/max
 dihedral angle, Vmax/Vmin, lmax/lmin, worst aspect ratio, and its volume
-against a Monte Carlo estimate of the implicit volume (1M samples of
-``warpblob.field``). warpblob timings are warm (kernels compiled and run
-once first), best of three; peers run once after their calibration run.
-Writes benchmarks/results/bench_tetrahedralize.json.
+against a Monte Carlo estimate of the implicit volume (``--samples`` points
+of ``warpblob.field``). Every tool is timed the same way: the wall clock
+around its whole call, warm (a first call with the same arguments excluded),
+best of ``--repeat`` (see ``benchmarks/_common.py``); warpblob's ``stats``
+seconds per stage of its fastest call are kept as the breakdown.
+``--quick``: peanut at 0.14, one timed call per tool. Writes
+benchmarks/results/bench_tetrahedralize.json with the load average before and after.
 """
 
 from __future__ import annotations
@@ -34,25 +38,23 @@ import argparse
 import os
 import sys
 import tempfile
-import time
 
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from _common import best_of, machine, table, write_json
+from _common import Run, arguments, table, wall_time
 
 import warpblob as wb
 from warpblob.mesh._tetmesh import TetMesh
 from warpblob.tetrahedralize import tetrahedralize
 
 THESIS_TETS_AT_0_1 = {"tumor": 130_000, "three_slabs": 120_000, "cake": 85_000}  # SPEC 3
-MC_SAMPLES = 1_000_000
 
 
-def implicit_volume(model, seed: int = 0) -> float:
+def implicit_volume(model, samples: int, seed: int = 0) -> float:
     lo, hi = (np.asarray(b, dtype=np.float64) for b in model.bounds())
-    pts = np.random.default_rng(seed).uniform(lo, hi, (MC_SAMPLES, 3)).astype(np.float32)
+    pts = np.random.default_rng(seed).uniform(lo, hi, (samples, 3)).astype(np.float32)
     return float(np.mean(wb.field(model, pts) >= 0.5) * np.prod(hi - lo))
 
 
@@ -88,12 +90,11 @@ def run_pytetwild(surface, size):
     with tempfile.TemporaryDirectory() as scratch:
         os.chdir(scratch)
         try:
-            nodes, tets = pytetwild.tetrahedralize(
+            return pytetwild.tetrahedralize(
                 surface.vertices.astype(np.float64), surface.faces.astype(np.int32), edge_length_abs=size, quiet=True
             )
         finally:
             os.chdir(cwd)
-    return positive(nodes, tets)
 
 
 def run_tetgen(surface, size):
@@ -101,55 +102,63 @@ def run_tetgen(surface, size):
 
     gen = tetgen.TetGen(surface.vertices.astype(np.float64), surface.faces.astype(np.int32))
     nodes, tets, *_ = gen.tetrahedralize(quality=True, fixedvolume=True, maxvolume=size, quiet=True)
-    return positive(nodes, tets)
+    return nodes, tets
 
 
+#: name: (runner returning (nodes, tets), first size guess from the cellsize, size exponent in length units)
 PEERS = {
-    "pytetwild": (run_pytetwild, lambda h: h, 1.0),  # (runner, first size guess, size exponent in length units)
+    "pytetwild": (run_pytetwild, lambda h: h, 1.0),
     "tetgen": (run_tetgen, lambda h: 2.0 * h**3 / 12.0, 3.0),
 }
 
 
-def run_peer(name, surface, h, target_nodes):
+def run_peer(name, surface, h, target_nodes, repeat):
+    """(mesh, seconds, size): the peer tuned to ``target_nodes`` nodes, timed by :func:`wall_time`."""
     runner, guess, power = PEERS[name]
     size = guess(h)
-    first = runner(surface, size)
+    first = positive(*runner(surface, size))
     # node count ~ size^(-3 / power): scale the size to meet warpblob's node count
     size *= (first.node_count / target_nodes) ** (power / 3.0)
-    t0 = time.perf_counter()
-    mesh = runner(surface, size)
-    return mesh, time.perf_counter() - t0, size
+    seconds, (nodes, tets) = wall_time(lambda: runner(surface, size), repeat)
+    return positive(nodes, tets), seconds, size
+
+
+FULL = {"models": "tumor,peanut,cake,three_slabs", "cellsize": 0.1, "peers": "pytetwild,tetgen", "samples": 1_000_000,
+        "repeat": 3}  # fmt: skip
+QUICK = {"models": "peanut", "cellsize": 0.14, "peers": "pytetwild,tetgen", "samples": 200_000, "repeat": 1}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", default="tumor,peanut,cake,three_slabs")
-    ap.add_argument("--cellsize", type=float, default=0.1)
-    ap.add_argument("--peers", default="pytetwild,tetgen", help="comma-separated, empty for none")
-    args = ap.parse_args(argv)
+    ap.add_argument("--models", help=f"comma-separated scene names (default {FULL['models']})")
+    ap.add_argument("--cellsize", type=float, help=f"lattice cell size (default {FULL['cellsize']})")
+    ap.add_argument("--peers", help=f"comma-separated, empty for none (default {FULL['peers']})")
+    ap.add_argument("--samples", type=int, help="Monte Carlo points for the implicit volume (default 10^6)")
+    args = arguments(ap, FULL, QUICK, argv)
     h = args.cellsize
     peers = [p for p in args.peers.split(",") if p]
+    if set(peers) - set(PEERS):
+        ap.error(f"--peers: unknown {sorted(set(peers) - set(PEERS))}, choose from {sorted(PEERS)}")
     rows = []
-    print(f"tetrahedral meshing benchmark, cellsize {h}: warpblob warm best of 3, peers on warpblob's surface")
+    bench = Run("tetrahedralize", f"tetrahedral meshing benchmark, cellsize {h}, peers on warpblob's surface", args)
     for name in args.models.split(","):
         model = wb.scenes.ALL[name]()
         lm = wb.linearize(model)
-        volume = implicit_volume(model)
-        tetrahedralize(lm, cellsize=h)  # warm up: compile and run every kernel once
-        mesh = tetrahedralize(lm, cellsize=h)
-        seconds = best_of(lambda lm=lm: tetrahedralize(lm, cellsize=h))
+        volume = implicit_volume(model, args.samples)
+        seconds, mesh = wall_time(lambda lm=lm: tetrahedralize(lm, cellsize=h), args.repeat)
+        st = mesh.stats
         rows.append(
             {"model": name, "cellsize": h, "tool": "warpblob", **measure(mesh, seconds, volume),
-             "field_evaluations": mesh.stats["field_evaluations"], "thesis_tets": THESIS_TETS_AT_0_1.get(name)}
+             "field_evaluations": st["field_evaluations"], "stats_seconds": st["seconds"],
+             "stats_total_s": st["total_seconds"], "stats_wall_s": st["wall_seconds"],
+             "thesis_tets": THESIS_TETS_AT_0_1.get(name)}
         )  # fmt: skip
-        print(f"  {name}: warpblob {seconds:.3f} s, {mesh.tet_count} tets", flush=True)
-        wb.polygonize(lm, cellsize=h)
-        t0 = time.perf_counter()
-        surface = wb.polygonize(lm, cellsize=h)
-        surface_s = time.perf_counter() - t0
+        stages = f"stages {st['total_seconds']:.3f} s"
+        print(f"  {name}: warpblob {seconds:.3f} s ({stages}), {mesh.tet_count} tets", flush=True)
+        surface_s, surface = wall_time(lambda lm=lm: wb.polygonize(lm, cellsize=h), args.repeat)
         for peer in peers:
             try:
-                peer_mesh, peer_s, size = run_peer(peer, surface, h, mesh.node_count)
+                peer_mesh, peer_s, size = run_peer(peer, surface, h, mesh.node_count, args.repeat)
             except ImportError as err:
                 print(f"  {name}: {peer} skipped ({err})", flush=True)
                 continue
@@ -175,11 +184,7 @@ def main(argv=None):
         ("thesis_tets", "thesis tets", "d"),
     ]
     print(table(rows, cols))
-    path = write_json(
-        "bench_tetrahedralize.json",
-        {"benchmark": "tetrahedralize", "cellsize": h, "warm": True, "machine": machine(), "rows": rows},
-    )
-    print(f"wrote {path}")
+    bench.finish({"cellsize": h, "samples": args.samples, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -25,12 +25,15 @@ class StageClock:
         desc: the bar's label (the pipeline's name).
         stages: number of laps a full run takes.
         show: whether to show the bar (only ever on a terminal).
+        start: ``time.perf_counter()`` when the first stage began (default: now),
+            so that work done before the clock can exist (sizing the job to
+            decide on the bar) is still timed.
     """
 
-    def __init__(self, device, desc: str, stages: int, show: bool = False):
+    def __init__(self, device, desc: str, stages: int, show: bool = False, start: float | None = None):
         self.device = device
         self.seconds: dict[str, float] = {}
-        self._t0 = time.perf_counter()
+        self._t0 = time.perf_counter() if start is None else start
         self._bar = None
         if show:
             from ._progress import progress

@@ -125,6 +125,17 @@ class TetMesh:
         object.__setattr__(self, "tets", _frozen(tets))
         object.__setattr__(self, "material", material)
 
+    @classmethod
+    def _trusted(cls, nodes: np.ndarray, tets: np.ndarray, material: np.ndarray | None, stats: dict) -> TetMesh:
+        """A mesh from a warpblob pipeline's own arrays, valid by construction (finite float32 (N, 3)
+        nodes, int32 (T, 4) tets of distinct in-range nodes, int32 (T,) material): not checked again."""
+        mesh = object.__new__(cls)
+        for name, value in (("nodes", nodes), ("tets", tets), ("material", material)):
+            object.__setattr__(mesh, name, None if value is None else _frozen(value))
+        object.__setattr__(mesh, "stats", stats)
+        object.__setattr__(mesh, "_cache", {})
+        return mesh
+
     @property
     def node_count(self) -> int:
         return int(self.nodes.shape[0])

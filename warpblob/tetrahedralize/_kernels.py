@@ -629,3 +629,43 @@ def renumber_tets_kernel(
 def active_flags_kernel(sub_states: wp.array(dtype=wp.int32), offset: int, flags: wp.array(dtype=wp.int32)):
     tid = wp.tid() + offset
     flags[tid] = wp.where(sub_states[tid] == _OUTSIDE, 0, 1)
+
+
+@wp.kernel(enable_backward=False)
+def average_nodes_kernel(
+    nodes: wp.array(dtype=wp.vec3), tets: wp.array(dtype=wp.vec4i), offset: int, centroids: wp.array(dtype=wp.vec3)
+):
+    """Centroid of every tet, model units."""
+    tid = wp.tid() + offset
+    t = tets[tid]
+    # summed in node order, then quartered (exact): the float32 result of a numpy mean over the
+    # four nodes, so a material id never depends on where the centroid was computed
+    s = nodes[t[0]] + nodes[t[1]]
+    s = s + nodes[t[2]]
+    s = s + nodes[t[3]]
+    centroids[tid] = s * 0.25
+
+
+@wp.kernel(enable_backward=False)
+def match_colors_kernel(
+    colors: wp.array(dtype=wp.vec3), palette: wp.array(dtype=wp.vec3), offset: int, ids: wp.array(dtype=wp.int32)
+):
+    """Row of ``palette`` nearest ``colors[tid]`` in squared RGB distance, ties to the lower row
+    (0 for an empty palette)."""
+    tid = wp.tid() + offset
+    c = colors[tid]
+    best = float(wp.inf)
+    nearest = int(0)
+    for k in range(palette.shape[0]):
+        d = c - palette[k]
+        # one rounding per product and per sum, left to right (no fused multiply-add): the float32
+        # result of numpy's ((c - p) ** 2).sum(axis=1), so near-ties break the same way everywhere
+        dx = d[0] * d[0]
+        dy = d[1] * d[1]
+        dz = d[2] * d[2]
+        dist = dx + dy
+        dist = dist + dz
+        if dist < best:
+            best = dist
+            nearest = k
+    ids[tid] = nearest

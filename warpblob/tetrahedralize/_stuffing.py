@@ -1,16 +1,29 @@
-"""Host side of isosurface stuffing: arguments, stages, memory checks, statistics."""
+"""Host side of isosurface stuffing: arguments, one function per stage, memory checks, statistics.
+
+:func:`tetrahedralize` checks its arguments, sizes the lattice and runs the
+stages of :mod:`warpblob.tetrahedralize` in order (classification, sampling,
+cutting, warping, the graded interior's levels, stencils, nodes, materials),
+then builds the mesh. One :class:`~warpblob._stages.StageClock`, started at
+the call's first line, times all of it, the mesh construction included, so
+``stats["total_seconds"]`` is what the caller waits for.
+"""
 
 from __future__ import annotations
+
+import time
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
-from .._errors import ResourceError, WarpblobError
-from .._linearize import linearize
-from .._parallel import launch
-from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
 from .._device import resolve_device
+from .._errors import ResourceError, WarpblobError
+from .._linearize import LinearModel, linearize
+from .._parallel import check_threads, launch
+from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
+from ..field import color
 from ..field._engine import model_arrays
+from ..field._kernels import ModelArrays
 from ..mesh._tetmesh import TetMesh
 from ..tree import ISO_VALUE
 from . import _graded, _kernels, _tables
@@ -20,6 +33,7 @@ __all__ = ["ALPHA_LONG", "ALPHA_SHORT", "tetrahedralize"]
 ALPHA_LONG = 0.24999
 ALPHA_SHORT = 0.41189
 _WHO = "tetrahedralize"
+_ISO = float(ISO_VALUE)
 _TOLERANCE = 1e-4  # largest |F - iso| of a cut point
 _ROOT_ITERATIONS = 32
 _WARP_ROUNDS = 4  # rounds of warp decisions per host sync (chains of violations are short)
@@ -27,13 +41,13 @@ _WARP_ROUNDS = 4  # rounds of warp decisions per host sync (chains of violations
 _CACHE: dict = {}
 
 
-def _kernel_set():
+def _kernel_set() -> dict:
     if "kernels" not in _CACHE:
         _CACHE["kernels"] = _kernels.make_kernels()
     return _CACHE["kernels"]
 
 
-def _device_tables(device):
+def _device_tables(device) -> dict:
     key = ("tables", str(device))
     if key not in _CACHE:
         counts, refs = _tables.build_stencils()
@@ -68,6 +82,382 @@ def _alpha(name: str, value) -> float:
     return v
 
 
+def _interior_ratio(h: float, cellsize, interior_cellsize) -> int:
+    """Fine cubes per side of the coarsest graded cube: ``interior_cellsize / cellsize`` rounded
+    down to a power of two, 0 for the uniform lattice (``None`` or a ratio below 2)."""
+    if interior_cellsize is None:
+        return 0
+    hi_cell = _positive("interior_cellsize", interior_cellsize)
+    if hi_cell < h * (1.0 - 1e-9):
+        raise WarpblobError(
+            f"tetrahedralize: interior_cellsize must be >= cellsize, got {interior_cellsize!r} < {cellsize!r}"
+        )
+    ratio = 2 ** int(np.floor(np.log2(hi_cell / h) + 1e-9))
+    return ratio if ratio >= 2 else 0
+
+
+@dataclass
+class _Run:
+    """What every stage of one call shares: where it runs and the lattice it works on."""
+
+    device: wp.context.Device
+    threads: int | None
+    limit: int  # bytes the call may allocate
+    lattice: _kernels.Lattice
+    n_points: int  # lattice points, black then red
+    n_blocks: int  # coarse blocks of BLOCK^3 cubes
+    n_subs: int  # sub-blocks of SUB^3 cubes
+    model: ModelArrays
+    kernels: dict  # the field-evaluating kernels (:func:`_kernels.make_kernels`)
+    tables: dict  # the stencil and lattice tables on ``device``
+
+    def launch(self, kernel, dim: int, before: list, after: list) -> None:
+        launch(kernel, dim, before, after, self.device, self.threads)
+
+
+def _lattice(lo: np.ndarray, hi: np.ndarray, h: float) -> tuple[_kernels.Lattice, np.ndarray, int, int, int]:
+    """The BCC lattice of spacing ``h`` over the box ``[lo, hi]`` (model units).
+
+    Returns:
+        ``(lattice, cells, n_points, n_blocks, n_subs)``: the kernels' description,
+        (3,) int64 cubes per axis, and the numbers of points, blocks and sub-blocks.
+
+    Raises:
+        ResourceError: the lattice's point or tet indices would not fit in int32.
+    """
+    # one empty cube of margin on every side: the outermost points see F = 0, so the
+    # tets that would reach past the lattice are outside anyway and the boundary closes
+    cells = np.ceil((hi - lo) / h).astype(np.int64) + 2
+    blocks = -(-cells // _kernels.BLOCK)
+    subs = -(-cells // _kernels.SUB)
+    n_black = int(np.prod(cells + 1))
+    n_points = n_black + int(np.prod(cells))
+    n_blocks, n_subs = int(np.prod(blocks)), int(np.prod(subs))
+    if n_points >= np.iinfo(np.int32).max // 2 or n_subs * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL >= 2**31:
+        raise ResourceError(
+            f"tetrahedralize: {n_points} lattice points exceed the int32 index range; use a larger cellsize"
+        )
+    lat = _kernels.Lattice()
+    lat.origin = wp.vec3(*(lo - h).astype(np.float32))
+    lat.h = h
+    lat.cells = wp.vec3i(*cells.astype(np.int32))
+    lat.black = n_black
+    lat.blocks = wp.vec3i(*blocks.astype(np.int32))
+    lat.subs = wp.vec3i(*subs.astype(np.int32))
+    return lat, cells, n_points, n_blocks, n_subs
+
+
+def _level_dims(cells: np.ndarray, ratio: int) -> list[np.ndarray]:
+    """(3,) cubes per axis of each coarse level, level 1 (2 fine cubes a side) first; as many
+    levels as ``ratio = 2^n`` asks for and the lattice has room for (none when uniform)."""
+    dims: list[np.ndarray] = []
+    if ratio:
+        d = cells // 2
+        while len(dims) < int(np.log2(ratio)) and np.all(d >= 1):
+            dims.append(d.copy())
+            d = d // 2
+    return dims
+
+
+@dataclass
+class _Levels:
+    """The graded interior's coarse levels: one flag per cube of every level, in one flat array."""
+
+    sizes: list[int]  # cubes of each level
+    offsets: np.ndarray  # (levels + 1,) int32 start of each level in ``flat``
+    flat: wp.array  # int32 level flags (:func:`_graded.classify_coarse_kernel`), level 1 first
+    offsets_wp: wp.array  # ``offsets`` on the device, at least one entry
+    dims_wp: wp.array  # (levels,) vec3i cubes per axis, at least one entry
+    level1_dims: wp.vec3i  # level 1's cubes per axis ((1, 1, 1) when uniform)
+
+    @property
+    def count(self) -> int:
+        return len(self.sizes)
+
+    @property
+    def fine_ratio(self) -> int:
+        """Fine cubes per level-1 cube side, 0 when uniform: how the fine stencils see level 1."""
+        return 2 if self.sizes else 0
+
+
+def _levels(run: _Run, dims: list[np.ndarray]) -> _Levels:
+    """The level bookkeeping (a few integers per level, numpy) and the flag array for ``dims``."""
+    sizes = [int(np.prod(d)) for d in dims]
+    offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32) if dims else np.zeros(1, np.int32)
+    dev = run.device
+    return _Levels(
+        sizes=sizes,
+        offsets=offsets,
+        flat=wp.zeros(max(int(offsets[-1]), 1), dtype=wp.int32, device=dev),
+        offsets_wp=wp.array(offsets[: max(len(dims), 1)], dtype=wp.int32, device=dev),
+        dims_wp=wp.array(np.array(dims or [np.ones(3)], dtype=np.int32), dtype=wp.vec3i, device=dev),
+        level1_dims=wp.vec3i(*(dims[0] if dims else np.ones(3)).astype(np.int32)),
+    )
+
+
+def _classify(run: _Run) -> tuple[wp.array, wp.array, wp.array]:
+    """Stage 1, empty- and full-space rejection: interval bounds of F on blocks, then on sub-blocks.
+
+    Returns:
+        ``(sub_states, bounded, active)``: (S,) int32 MIXED / INSIDE / OUTSIDE per sub-block,
+        (S,) int32 1 where a sub-block got its own interval test, and the ascending int32
+        indices of the sub-blocks not proven outside.
+    """
+    dev, k, lat = run.device, run.kernels, run.lattice
+    block_states = wp.empty(run.n_blocks, dtype=wp.int32, device=dev)
+    run.launch(k["classify_blocks"], run.n_blocks, [run.model, lat, _ISO], [block_states])
+    sub_states = wp.empty(run.n_subs, dtype=wp.int32, device=dev)
+    bounded = wp.empty(run.n_subs, dtype=wp.int32, device=dev)
+    run.launch(k["classify_subs"], run.n_subs, [run.model, lat, _ISO, block_states], [sub_states, bounded])
+    flags = wp.empty(run.n_subs, dtype=wp.int32, device=dev)
+    run.launch(_kernels.active_flags_kernel, run.n_subs, [sub_states], [flags])
+    return sub_states, bounded, compact(flags, dev, run.threads)
+
+
+def _sample(run: _Run, sub_states: wp.array) -> tuple[wp.array, wp.array]:
+    """Stage 2: F at the lattice points a tet of a mixed sub-block uses, a stand-in on the proven side elsewhere.
+
+    Returns:
+        ``(values, evaluated)``: (P,) float32 field values and (P,) int32 1 where F was evaluated.
+    """
+    values = wp.empty(run.n_points, dtype=wp.float32, device=run.device)
+    evaluated = wp.empty(run.n_points, dtype=wp.int32, device=run.device)
+    run.launch(run.kernels["sample"], run.n_points, [run.model, run.lattice, _ISO, sub_states], [values, evaluated])
+    return values, evaluated
+
+
+@dataclass
+class _Cuts:
+    """Cut points: one per lattice edge whose ends lie strictly on opposite sides of the surface."""
+
+    masks: wp.array  # (P,) int32 bit mask of each point's crossed owned edges
+    offsets: wp.array  # (P,) int32 index of each point's first cut point
+    positions: wp.array  # (C,) vec3 cut points, model units
+    params: wp.array  # (C,) float32 position along the edge from its owner, in (0, 1)
+    steps: wp.array  # (C,) int32 field evaluations of each root search
+    count: int  # C
+
+
+def _cut(run: _Run, values: wp.array) -> _Cuts:
+    """Stage 3: the crossed lattice edges (masks and a scan number them) and a root on each."""
+    dev = run.device
+    masks = wp.empty(run.n_points, dtype=wp.int32, device=dev)
+    counts = wp.empty(run.n_points, dtype=wp.int32, device=dev)
+    run.launch(_kernels.count_cuts_kernel, run.n_points, [run.lattice, _ISO, values], [masks, counts])
+    offsets, n_cuts = scan(counts)
+    check_memory(_WHO, "cut point", n_cuts * 28, run.limit)
+    cuts = _Cuts(
+        masks=masks,
+        offsets=offsets,
+        positions=wp.empty(n_cuts, dtype=wp.vec3, device=dev),
+        params=wp.empty(n_cuts, dtype=wp.float32, device=dev),
+        steps=wp.empty(n_cuts, dtype=wp.int32, device=dev),
+        count=n_cuts,
+    )
+    run.launch(
+        run.kernels["cut"],
+        run.n_points,
+        [run.model, run.lattice, _ISO, _TOLERANCE, _ROOT_ITERATIONS, values, masks, offsets],
+        [cuts.positions, cuts.params, cuts.steps],
+    )
+    return cuts
+
+
+def _warp(
+    run: _Run, values: wp.array, cuts: _Cuts, alpha_long: float, alpha_short: float
+) -> tuple[wp.array, wp.array, int]:
+    """Stage 4, warping: lattice points too close to a cut point move onto it.
+
+    Which violated points move is settled first, so that no point moves onto a
+    cut point whose other end moves too: rounds of forced decisions until none
+    changes, with one host sync per ``_WARP_ROUNDS`` rounds.
+
+    Returns:
+        ``(labels, targets, rounds)``: (P,) int32 final labels (+1, -1, 0 on the
+        surface), (P,) int32 the cut point each warped point sits on (-1: not
+        warped), and the decision rounds run.
+    """
+    dev, lat = run.device, run.lattice
+    warp_args = [lat, alpha_long, alpha_short, cuts.masks, cuts.offsets, cuts.params]
+    states = wp.empty(run.n_points, dtype=wp.int32, device=dev)
+    run.launch(_kernels.violated_kernel, run.n_points, warp_args, [states])
+    spare = wp.empty(run.n_points, dtype=wp.int32, device=dev)
+    changed = wp.zeros(1, dtype=wp.int32, device=dev)
+    rounds = 0
+    while True:
+        for r in range(_WARP_ROUNDS):
+            if r == _WARP_ROUNDS - 1:
+                changed.zero_()
+            run.launch(_kernels.resolve_kernel, run.n_points, [*warp_args, states], [spare, changed])
+            states, spare = spare, states
+        rounds += _WARP_ROUNDS
+        if int(changed.numpy()[0]) == 0:  # host sync: another batch of rounds, or done
+            break
+    labels = wp.empty(run.n_points, dtype=wp.int32, device=dev)
+    targets = wp.empty(run.n_points, dtype=wp.int32, device=dev)
+    run.launch(
+        _kernels.warp_points_kernel,
+        run.n_points,
+        [lat, _ISO, alpha_long, alpha_short, values, cuts.masks, cuts.offsets, cuts.params, states],
+        [labels, targets],
+    )
+    return labels, targets, rounds
+
+
+def _coarsen(run: _Run, labels: wp.array, levels: _Levels) -> None:
+    """Graded interior, after warping: fill ``levels.flat``. A level-1 cube qualifies when its
+    lattice points, one fine cube around included, are all ``+``; a level-``L >= 2`` cube when
+    the level-``(L - 1)`` cubes of it and its neighbours do (2:1 balance)."""
+    for lv, size in enumerate(levels.sizes, start=1):
+        part = wp.empty(size, dtype=wp.int32, device=run.device)
+        if lv == 1:
+            run.launch(_graded.classify_coarse_kernel, size, [run.lattice, labels, 2, levels.level1_dims], [part])
+        else:
+            run.launch(_graded.classify_level_kernel, size,
+                       [levels.flat, levels.offsets_wp, levels.dims_wp, levels.count, lv], [part])  # fmt: skip
+        wp.copy(levels.flat, part, dest_offset=int(levels.offsets[lv - 1]), count=size)
+
+
+@dataclass
+class _GradedPlan:
+    """Counts and offsets of the graded tets (fine half-pyramids, then each level's leaf cubes)."""
+
+    n_faces: int  # fine cube faces examined for half-pyramids
+    transition_counts: wp.array | None
+    transition_offsets: wp.array | None
+    n_transition: int
+    coarse_parts: list  # (level, (6 n,) int32 counts, offsets, tets) per level
+    n_coarse: int
+
+
+def _count_graded(run: _Run, active: wp.array, levels: _Levels) -> _GradedPlan:
+    """Count the half-pyramids on fine faces against a level-1 cube and, per level, the leaf cubes' tets."""
+    if not levels.count:
+        return _GradedPlan(0, None, None, 0, [], 0)
+    n_faces = active.shape[0] * _kernels.SUB_CELLS * 6
+    check_memory(_WHO, "transition", (n_faces + 6 * sum(levels.sizes)) * 8, run.limit)
+    trans_counts = wp.empty(n_faces, dtype=wp.int32, device=run.device)
+    run.launch(_graded.count_transition_kernel, n_faces, [run.lattice, active, levels.flat, levels.level1_dims, 2],
+               [trans_counts])  # fmt: skip
+    trans_offsets, n_transition = scan(trans_counts)
+    parts = []
+    for lv, size in enumerate(levels.sizes, start=1):
+        counts = wp.empty(6 * size, dtype=wp.int32, device=run.device)
+        run.launch(_graded.count_coarse_kernel, 6 * size, [levels.flat, levels.offsets_wp, levels.dims_wp,
+                   levels.count, lv], [counts])  # fmt: skip
+        offsets, n_level = scan(counts)
+        parts.append((lv, counts, offsets, n_level))
+    return _GradedPlan(n_faces, trans_counts, trans_offsets, n_transition, parts, sum(p[3] for p in parts))
+
+
+def _emit_graded(run: _Run, active: wp.array, levels: _Levels, plan: _GradedPlan, raw: wp.array, at: int) -> None:
+    """Write the graded tets of ``plan`` into ``raw`` from row ``at`` on (half-pyramids, then level by level)."""
+    if plan.n_transition:
+        part = wp.empty(plan.n_transition, dtype=wp.vec4i, device=run.device)
+        run.launch(_graded.emit_transition_kernel, plan.n_faces,
+                   [run.lattice, active, plan.transition_counts, plan.transition_offsets], [part])  # fmt: skip
+        wp.copy(raw, part, dest_offset=at, count=plan.n_transition)
+        at += plan.n_transition
+    for lv, counts, offsets, n_level in plan.coarse_parts:
+        if n_level:
+            part = wp.empty(n_level, dtype=wp.vec4i, device=run.device)
+            run.launch(_graded.emit_coarse_kernel, counts.shape[0],
+                       [run.lattice, levels.flat, levels.offsets_wp, levels.dims_wp, levels.count, lv, counts,
+                        offsets], [part])  # fmt: skip
+            wp.copy(raw, part, dest_offset=at, count=n_level)
+            at += n_level
+
+
+def _stencils(
+    run: _Run, labels: wp.array, cuts: _Cuts, active: wp.array, levels: _Levels
+) -> tuple[wp.array, int, _GradedPlan]:
+    """Stage 5: count, scan, emit the tets in lattice-point and cut-point numbering.
+
+    Returns:
+        ``(raw, n_stencil, plan)``: (T,) vec4i tets, first the stencils of every
+        lattice tet with a ``+`` vertex, then the graded tets of ``plan``.
+    """
+    dev, tables = run.device, run.tables
+    n_threads = active.shape[0] * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL
+    check_memory(_WHO, "stencil", n_threads * 12, run.limit)
+    patterns = wp.empty(n_threads, dtype=wp.int32, device=dev)
+    tet_counts = wp.empty(n_threads, dtype=wp.int32, device=dev)
+    run.launch(
+        _kernels.count_tets_kernel,
+        n_threads,
+        [run.lattice, labels, tables["vertices"], tables["counts"], active, levels.flat, levels.level1_dims,
+         levels.fine_ratio],
+        [patterns, tet_counts],
+    )  # fmt: skip
+    tet_offsets, n_stencil = scan(tet_counts)
+    plan = _count_graded(run, active, levels)
+    n_raw = n_stencil + plan.n_transition + plan.n_coarse
+    check_memory(_WHO, "tet", n_raw * 32 + (run.n_points + cuts.count) * 8, run.limit)
+    raw = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
+    run.launch(
+        _kernels.emit_tets_kernel,
+        n_threads,
+        [run.lattice, run.n_points, tables["vertices"], tables["edge_owners"], tables["edge_slots"], tables["refs"],
+         cuts.masks, cuts.offsets, active, patterns, tet_counts, tet_offsets],
+        [raw],
+    )  # fmt: skip
+    _emit_graded(run, active, levels, plan, raw, n_stencil)
+    return raw, n_stencil, plan
+
+
+def _nodes(run: _Run, raw: wp.array, targets: wp.array, cuts: _Cuts) -> tuple[wp.array, wp.array]:
+    """Stage 6: keep the lattice and cut points a tet uses, renumbered by a scan.
+
+    Returns:
+        ``(nodes, tets)``: (N,) vec3 positions, model units (warped points on their
+        cut point), and (T,) vec4i tets in that numbering.
+    """
+    dev, n_raw = run.device, raw.shape[0]
+    used = wp.zeros(run.n_points + cuts.count, dtype=wp.int32, device=dev)
+    run.launch(_kernels.mark_nodes_kernel, n_raw, [raw], [used])
+    node_ids, n_nodes = scan(used)
+    nodes = wp.empty(n_nodes, dtype=wp.vec3, device=dev)
+    run.launch(
+        _kernels.write_nodes_kernel,
+        run.n_points + cuts.count,
+        [run.lattice, run.n_points, targets, cuts.positions, used, node_ids],
+        [nodes],
+    )
+    tets = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
+    run.launch(_kernels.renumber_tets_kernel, n_raw, [node_ids, raw], [tets])
+    return nodes, tets
+
+
+def _materials(run: _Run, lm: LinearModel, nodes: wp.array, tets: wp.array) -> tuple[wp.array, np.ndarray]:
+    """Stage 7: a material id per tet, the primitive colour nearest the model's colour at its centroid.
+
+    Returns:
+        ``(ids, palette)``: (T,) int32 rows of ``palette``, the (M, 3) float32
+        distinct primitive colours, sorted (RGB in [0, 1]).
+    """
+    n_tets = tets.shape[0]
+    # bytes per tet: centroid 12, then value 4, gradient 12 and colour 12 (the colour evaluation
+    # computes all three), id 4
+    check_memory(_WHO, "material", n_tets * 44, run.limit)
+    palette = np.unique(lm.color.reshape(-1, 3), axis=0)
+    centroids = wp.empty(n_tets, dtype=wp.vec3, device=run.device)
+    run.launch(_kernels.average_nodes_kernel, n_tets, [nodes, tets], [centroids])
+    colors = color(lm, centroids, threads=run.threads)  # Warp in, Warp out: no host sync
+    ids = wp.empty(n_tets, dtype=wp.int32, device=run.device)
+    run.launch(_kernels.match_colors_kernel, n_tets, [colors, wp.array(palette, dtype=wp.vec3, device=run.device)],
+               [ids])  # fmt: skip
+    return ids, palette
+
+
+def _clocked(mesh: TetMesh, clock: StageClock, start: float) -> TetMesh:
+    """``mesh`` with the call's times in its stats: ``seconds`` per stage, their sum
+    ``total_seconds``, and ``wall_seconds`` since ``start`` (``time.perf_counter``).
+    Written after the last stage, which builds the mesh itself."""
+    mesh.stats.update(seconds=clock.seconds, total_seconds=sum(clock.seconds.values()))
+    mesh.stats["wall_seconds"] = time.perf_counter() - start
+    return mesh
+
+
 def tetrahedralize(
     model,
     *,
@@ -79,7 +469,7 @@ def tetrahedralize(
     max_memory: int | None = None,
     threads: int | None = None,
     progress: bool | None = None,
-):
+) -> TetMesh:
     """Fill ``model`` with tetrahedra by isosurface stuffing (Labelle & Shewchuk 2007).
 
     See :mod:`warpblob.tetrahedralize` for the method and its guarantees.
@@ -106,20 +496,28 @@ def tetrahedralize(
 
     Returns:
         :class:`~warpblob.mesh.TetMesh` with positively oriented tets,
-        ``material`` (the tissue of each tet: the primitive colour nearest the
-        model's colour at its centroid, an index into ``stats["materials"]``,
-        see :func:`material_ids`), and ``stats``: ``cellsize``,
+        ``material`` ((T,) int32, the tissue of each tet: the row of
+        ``stats["materials"]``, the sorted distinct primitive colours, nearest
+        in squared RGB distance the model's colour at the tet's centroid, ties
+        to the lower row), and ``stats``: ``cellsize``,
         ``lattice_points``, ``field_evaluations`` (lattice samples plus
         root-search steps, counted in the kernels), ``lattice_evaluations``,
         ``root_evaluations``, ``interval_evaluations`` (block bounds),
+        ``material_evaluations`` (one colour evaluation per tet centroid),
         ``blocks_total``, ``sub_blocks_total``, ``sub_blocks_active`` (not
         proven outside), ``sub_blocks_inside`` (proven inside: tets without
         field evaluation), ``sub_blocks_outside``,
-        ``cut_points``, ``warped_points``, ``tets``, ``nodes``, ``seconds``
-        per stage and ``total_seconds``; ``interior_cellsize`` (the rounded
-        value, ``cellsize`` when uniform), ``coarse_levels`` (0 when
-        uniform), ``stencil_tets``, ``transition_tets`` (fine half-pyramids)
-        and ``coarse_tets``: the tets come in that order.
+        ``cut_points``, ``warped_points``, ``warp_rounds``, ``tets``, ``nodes``;
+        ``interior_cellsize`` (the rounded value, ``cellsize`` when uniform),
+        ``coarse_levels`` (0 when uniform), ``stencil_tets``,
+        ``transition_tets`` (fine half-pyramids) and ``coarse_tets``: the tets
+        come in that order. Times: ``seconds``, per stage (``setup``: the
+        argument checks, the model's linearization and device copy, the
+        lattice's size; ``classify``, ``sample``, ``cut``, ``warp``,
+        ``coarse`` when graded, ``stencil``, ``nodes``, ``materials``,
+        ``mesh``: the host copies, these statistics and the mesh object);
+        ``total_seconds``, their sum, the whole call but for writing these
+        times; and ``wall_seconds``, the whole call by ``time.perf_counter``.
 
     Raises:
         WarpblobError: bad arguments (``interior_cellsize < cellsize``
@@ -131,27 +529,19 @@ def tetrahedralize(
         >>> mesh = tetrahedralize(wb.Point((0, 0, 0), 1.0), cellsize=0.1)
         >>> bool(mesh.volumes().min() > 0), mesh.is_conforming()
         (True, True)
+        >>> s = mesh.stats
+        >>> list(s["seconds"]), s["total_seconds"] <= s["wall_seconds"]
+        (['setup', 'classify', 'sample', 'cut', 'warp', 'stencil', 'nodes', 'materials', 'mesh'], True)
     """
+    start = time.perf_counter()
     h = _positive("cellsize", cellsize)
-    ratio = 0  # fine cubes per coarse cube side; 0: uniform lattice
-    if interior_cellsize is not None:
-        hi_cell = _positive("interior_cellsize", interior_cellsize)
-        if hi_cell < h * (1.0 - 1e-9):
-            raise WarpblobError(
-                f"tetrahedralize: interior_cellsize must be >= cellsize, got {interior_cellsize!r} < {cellsize!r}"
-            )
-        # rounded down to a power of two times cellsize (levels of 2, 4, ... cellsize, see the module docs)
-        ratio = 2 ** int(np.floor(np.log2(hi_cell / h) + 1e-9))
-        if ratio < 2:
-            ratio = 0
+    ratio = _interior_ratio(h, cellsize, interior_cellsize)
     a_long = _alpha("alpha_long", alpha_long)
     a_short = _alpha("alpha_short", alpha_short)
-    if threads is not None and (not isinstance(threads, int) or isinstance(threads, bool) or threads < 1):
-        raise WarpblobError(f"tetrahedralize: threads must be a positive integer, got {threads!r}")
+    threads = check_threads(threads, f"{_WHO}: threads")
     dev = resolve_device(device)
     lm = linearize(model)
     limit = available_memory(dev) if max_memory is None else int(max_memory)
-    iso = float(ISO_VALUE)
     stats: dict = {
         "cellsize": h,
         "interior_cellsize": h * ratio if ratio else h,
@@ -160,266 +550,67 @@ def tetrahedralize(
     }
     lo, hi = lm.bounds
     if np.any(lo > hi):
-        stats.update(tets=0, nodes=0, field_evaluations=0, seconds={}, total_seconds=0.0)
-        return TetMesh(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.int32), np.zeros(0, np.int32), stats)
+        clock = StageClock(dev, _WHO, 1, start=start)
+        stats.update(tets=0, nodes=0, field_evaluations=0)
+        mesh = TetMesh._trusted(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.int32), np.zeros(0, np.int32), stats)
+        clock.lap("mesh")
+        return _clocked(mesh, clock, start)
 
-    # one empty cube of margin on every side: the outermost points see F = 0, so the
-    # tets that would reach past the lattice are outside anyway and the boundary closes
-    cells = np.ceil((hi - lo) / h).astype(np.int64) + 2
-    blocks = -(-cells // _kernels.BLOCK)
-    subs = -(-cells // _kernels.SUB)
-    n_black = int(np.prod(cells + 1))
-    n_points = n_black + int(np.prod(cells))
-    n_blocks, n_subs = int(np.prod(blocks)), int(np.prod(subs))
-    if n_points >= np.iinfo(np.int32).max // 2 or n_subs * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL >= 2**31:
-        raise ResourceError(
-            f"tetrahedralize: {n_points} lattice points exceed the int32 index range; use a larger cellsize"
-        )
+    lat, cells, n_points, n_blocks, n_subs = _lattice(lo, hi, h)
     check_memory(_WHO, "lattice", n_points * 40 + n_subs * 16 + n_blocks * 4, limit)
+    level_dims = _level_dims(cells, ratio)
     show = bool(progress) or (progress is None and n_points >= PROGRESS_CELLS)
-    clock = StageClock(dev, "tetrahedralize", 7 if ratio else 6, show=show)
-    lap = clock.lap
-    lat = _kernels.Lattice()
-    lat.origin = wp.vec3(*(lo - h).astype(np.float32))
-    lat.h = h
-    lat.cells = wp.vec3i(*cells.astype(np.int32))
-    lat.black = n_black
-    lat.blocks = wp.vec3i(*blocks.astype(np.int32))
-    lat.subs = wp.vec3i(*subs.astype(np.int32))
-    kernels = _kernel_set()
-    tables = _device_tables(dev)
-    m = model_arrays(lm, dev)
+    clock = StageClock(dev, _WHO, 10 if level_dims else 9, show=show, start=start)
+    run = _Run(dev, threads, limit, lat, n_points, n_blocks, n_subs, model_arrays(lm, dev), _kernel_set(),
+               _device_tables(dev))  # fmt: skip
+    levels = _levels(run, level_dims)
+    clock.lap("setup")
+    sub_states, bounded, active = _classify(run)
+    clock.lap("classify")
+    values, evaluated = _sample(run, sub_states)
+    clock.lap("sample")
+    cuts = _cut(run, values)
+    clock.lap("cut")
+    labels, targets, rounds = _warp(run, values, cuts, a_long, a_short)
+    clock.lap("warp")
+    if levels.count:
+        _coarsen(run, labels, levels)
+        clock.lap("coarse")
+    raw, n_stencil, plan = _stencils(run, labels, cuts, active, levels)
+    clock.lap("stencil")
+    nodes, tets = _nodes(run, raw, targets, cuts)
+    clock.lap("nodes")
+    material, palette = _materials(run, lm, nodes, tets)
+    clock.lap("materials")
 
-    # 1. empty-space and full-space rejection: interval bounds of F on blocks, then sub-blocks
-    block_states = wp.empty(n_blocks, dtype=wp.int32, device=dev)
-    launch(kernels["classify_blocks"], n_blocks, [m, lat, iso], [block_states], dev, threads)
-    sub_states = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    bounded = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    launch(kernels["classify_subs"], n_subs, [m, lat, iso, block_states], [sub_states, bounded], dev, threads)
-    flags = wp.empty(n_subs, dtype=wp.int32, device=dev)
-    launch(_kernels.active_flags_kernel, n_subs, [sub_states], [flags], dev, threads)
-    active = compact(flags, dev, threads)
-    n_active = active.shape[0]
-    lap("classify")
-
-    # 2. the field at the lattice points that a tet of a mixed sub-block uses
-    values = wp.empty(n_points, dtype=wp.float32, device=dev)
-    evaluated = wp.empty(n_points, dtype=wp.int32, device=dev)
-    launch(kernels["sample"], n_points, [m, lat, iso, sub_states], [values, evaluated], dev, threads)
-    lap("sample")
-
-    # 3. cut points on the crossed lattice edges
-    masks = wp.empty(n_points, dtype=wp.int32, device=dev)
-    cut_counts = wp.empty(n_points, dtype=wp.int32, device=dev)
-    launch(_kernels.count_cuts_kernel, n_points, [lat, iso, values], [masks, cut_counts], dev, threads)
-    cut_offsets, n_cuts = scan(cut_counts)
-    check_memory(_WHO, "cut point", n_cuts * 28, limit)
-    cut_positions = wp.empty(n_cuts, dtype=wp.vec3, device=dev)
-    cut_params = wp.empty(n_cuts, dtype=wp.float32, device=dev)
-    root_steps = wp.empty(n_cuts, dtype=wp.int32, device=dev)
-    launch(
-        kernels["cut"],
-        n_points,
-        [m, lat, iso, _TOLERANCE, _ROOT_ITERATIONS, values, masks, cut_offsets],
-        [cut_positions, cut_params, root_steps],
-        dev,
-        threads,
-    )
-    lap("cut")
-
-    # 4. warping: lattice points too close to a cut point move onto it. Which violated points
-    # move is settled first so that no point moves onto a cut point whose other end moves too
-    # (rounds of forced decisions until none changes; one host sync per _WARP_ROUNDS rounds)
-    warp_args = [lat, a_long, a_short, masks, cut_offsets, cut_params]
-    states = wp.empty(n_points, dtype=wp.int32, device=dev)
-    launch(_kernels.violated_kernel, n_points, warp_args, [states], dev, threads)
-    spare = wp.empty(n_points, dtype=wp.int32, device=dev)
-    changed = wp.zeros(1, dtype=wp.int32, device=dev)
-    rounds = 0
-    while True:
-        for r in range(_WARP_ROUNDS):
-            if r == _WARP_ROUNDS - 1:
-                changed.zero_()
-            launch(_kernels.resolve_kernel, n_points, [*warp_args, states], [spare, changed], dev, threads)
-            states, spare = spare, states
-        rounds += _WARP_ROUNDS
-        if int(changed.numpy()[0]) == 0:
-            break
-    labels = wp.empty(n_points, dtype=wp.int32, device=dev)
-    targets = wp.empty(n_points, dtype=wp.int32, device=dev)
-    launch(
-        _kernels.warp_points_kernel,
-        n_points,
-        [lat, iso, a_long, a_short, values, masks, cut_offsets, cut_params, states],
-        [labels, targets],
-        dev,
-        threads,
-    )
-    lap("warp")
-
-    # 4b. graded interior: level-1 cubes (2 fine cubes a side) whose lattice points, one fine
-    # cube around included, are all +; level L >= 2 where a level-(L-1) cube and all its
-    # neighbours qualify (2:1 balance). Per-level bookkeeping (a few sizes) in numpy.
-    level_dims: list = []
-    if ratio:
-        d = cells // 2
-        while len(level_dims) < int(np.log2(ratio)) and np.all(d >= 1):
-            level_dims.append(d.copy())
-            d = d // 2
-    n_levels = len(level_dims)
-    level_sizes = [int(np.prod(d)) for d in level_dims]
-    level_offs = np.concatenate([[0], np.cumsum(level_sizes)]).astype(np.int32) if n_levels else np.zeros(1, np.int32)
-    flat = wp.zeros(max(int(level_offs[-1]), 1), dtype=wp.int32, device=dev)
-    offs_arr = wp.array(level_offs[: max(n_levels, 1)], dtype=wp.int32, device=dev)
-    dims_arr = wp.array(np.array(level_dims or [np.ones(3)], dtype=np.int32), dtype=wp.vec3i, device=dev)
-    level1_dims = wp.vec3i(*(level_dims[0] if n_levels else np.ones(3)).astype(np.int32))
-    for lv in range(1, n_levels + 1):
-        part = wp.empty(level_sizes[lv - 1], dtype=wp.int32, device=dev)
-        if lv == 1:
-            launch(_graded.classify_coarse_kernel, level_sizes[0], [lat, labels, 2, level1_dims], [part], dev, threads)
-        else:
-            launch(_graded.classify_level_kernel, level_sizes[lv - 1], [flat, offs_arr, dims_arr, n_levels, lv],
-                   [part], dev, threads)  # fmt: skip
-        wp.copy(flat, part, dest_offset=int(level_offs[lv - 1]), count=level_sizes[lv - 1])
-    fine_ratio = 2 if n_levels else 0  # level-1 cubes, as seen from the fine cubes
-    if n_levels:
-        lap("coarse")
-
-    # 5. stencils: count, scan, emit
-    n_threads = n_active * _kernels.SUB_CELLS * _kernels.TETS_PER_CELL
-    check_memory(_WHO, "stencil", n_threads * 12, limit)
-    patterns = wp.empty(n_threads, dtype=wp.int32, device=dev)
-    tet_counts = wp.empty(n_threads, dtype=wp.int32, device=dev)
-    launch(
-        _kernels.count_tets_kernel,
-        n_threads,
-        [lat, labels, tables["vertices"], tables["counts"], active, flat, level1_dims, fine_ratio],
-        [patterns, tet_counts],
-        dev,
-        threads,
-    )
-    tet_offsets, n_stencil = scan(tet_counts)
-    n_transition = n_coarse_tets = 0
-    coarse_parts = []
-    if n_levels:
-        # half-pyramids on fine faces against a level-1 cube; per level, the leaf cubes' tets
-        n_faces = n_active * _kernels.SUB_CELLS * 6
-        check_memory(_WHO, "transition", (n_faces + 6 * sum(level_sizes)) * 8, limit)
-        trans_counts = wp.empty(n_faces, dtype=wp.int32, device=dev)
-        launch(_graded.count_transition_kernel, n_faces, [lat, active, flat, level1_dims, 2], [trans_counts],
-               dev, threads)  # fmt: skip
-        trans_offsets, n_transition = scan(trans_counts)
-        for lv in range(1, n_levels + 1):
-            level_counts = wp.empty(6 * level_sizes[lv - 1], dtype=wp.int32, device=dev)
-            launch(_graded.count_coarse_kernel, 6 * level_sizes[lv - 1], [flat, offs_arr, dims_arr, n_levels, lv],
-                   [level_counts], dev, threads)  # fmt: skip
-            level_offsets, n_level = scan(level_counts)
-            coarse_parts.append((lv, level_counts, level_offsets, n_level))
-            n_coarse_tets += n_level
-    n_raw = n_stencil + n_transition + n_coarse_tets
-    check_memory(_WHO, "tet", n_raw * 32 + (n_points + n_cuts) * 8, limit)
-    raw = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
-    launch(
-        _kernels.emit_tets_kernel,
-        n_threads,
-        [lat, n_points, tables["vertices"], tables["edge_owners"], tables["edge_slots"], tables["refs"], masks,
-         cut_offsets, active, patterns, tet_counts, tet_offsets],
-        [raw],
-        dev,
-        threads,
-    )  # fmt: skip
-    if n_transition:
-        part = wp.empty(n_transition, dtype=wp.vec4i, device=dev)
-        launch(_graded.emit_transition_kernel, n_faces, [lat, active, trans_counts, trans_offsets], [part], dev,
-               threads)  # fmt: skip
-        wp.copy(raw, part, dest_offset=n_stencil, count=n_transition)
-    at = n_stencil + n_transition
-    for lv, level_counts, level_offsets, n_level in coarse_parts:
-        if n_level:
-            part = wp.empty(n_level, dtype=wp.vec4i, device=dev)
-            launch(_graded.emit_coarse_kernel, level_counts.shape[0],
-                   [lat, flat, offs_arr, dims_arr, n_levels, lv, level_counts, level_offsets], [part], dev,
-                   threads)  # fmt: skip
-            wp.copy(raw, part, dest_offset=at, count=n_level)
-            at += n_level
-    lap("stencil")
-
-    # 6. nodes: keep the points and cut points that a tet uses, renumbered by a scan
-    used = wp.zeros(n_points + n_cuts, dtype=wp.int32, device=dev)
-    launch(_kernels.mark_nodes_kernel, n_raw, [raw], [used], dev, threads)
-    node_ids, n_nodes = scan(used)
-    nodes = wp.empty(n_nodes, dtype=wp.vec3, device=dev)
-    launch(
-        _kernels.write_nodes_kernel,
-        n_points + n_cuts,
-        [lat, n_points, targets, cut_positions, used, node_ids],
-        [nodes],
-        dev,
-        threads,
-    )
-    tets = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
-    launch(_kernels.renumber_tets_kernel, n_raw, [node_ids, raw], [tets], dev, threads)
-    lap("nodes")
-
+    # host sync: the mesh and its statistics are numpy (on a GPU the first read waits, the rest copy)
     states = sub_states.numpy()
     lattice_evaluations = int(evaluated.numpy().sum())
-    root_evaluations = int(root_steps.numpy().sum()) if n_cuts else 0
+    root_evaluations = int(cuts.steps.numpy().sum()) if cuts.count else 0
     stats.update(
         lattice_points=n_points,
         blocks_total=n_blocks,
         sub_blocks_total=n_subs,
-        sub_blocks_active=n_active,
+        sub_blocks_active=active.shape[0],
         sub_blocks_inside=int(np.count_nonzero(states == _kernels.INSIDE)),
         sub_blocks_outside=int(np.count_nonzero(states == _kernels.OUTSIDE)),
         lattice_evaluations=lattice_evaluations,
         root_evaluations=root_evaluations,
         field_evaluations=lattice_evaluations + root_evaluations,
         interval_evaluations=n_blocks + int(bounded.numpy().sum()),
-        cut_points=n_cuts,
-        coarse_levels=n_levels,
+        material_evaluations=tets.shape[0],
+        cut_points=cuts.count,
+        coarse_levels=levels.count,
         stencil_tets=n_stencil,
-        transition_tets=n_transition,
-        coarse_tets=n_coarse_tets,
+        transition_tets=plan.n_transition,
+        coarse_tets=plan.n_coarse,
         warped_points=int(np.count_nonzero(targets.numpy() >= 0)),
         warp_rounds=rounds,
-        tets=n_raw,
-        nodes=n_nodes,
-        seconds=clock.seconds,
-        total_seconds=sum(clock.seconds.values()),
+        tets=tets.shape[0],
+        nodes=nodes.shape[0],
+        materials=palette.tolist(),
     )
-    node_array = nodes.numpy().reshape(-1, 3)
-    tet_array = tets.numpy().reshape(-1, 4)
-    material, palette = material_ids(lm, node_array[tet_array].mean(axis=1), device=dev, threads=threads)
-    stats["materials"] = palette.tolist()
-    stats["material_evaluations"] = len(tet_array)  # one colour evaluation per tet centroid
-    return TetMesh(node_array, tet_array, material, stats)
-
-
-def material_ids(model, points, *, device=None, threads=None):
-    """A material id per point: the index of the primitive colour nearest the
-    model's colour there (tissues are told apart by colour, as in the head's
-    skull / CSF / grey / white matter layers).
-
-    Args:
-        model: a model or its LinearModel.
-        points: (N, 3) positions, model units (tet centroids).
-
-    Returns:
-        ``(ids (N,) int32, palette (M, 3) float32)``: the distinct primitive
-        colours, sorted, and for each point the row of the nearest one.
-    """
-    from ..field import color
-
-    lm = linearize(model)
-    palette = np.unique(lm.color.reshape(-1, 3), axis=0)
-    if len(points) == 0 or len(palette) == 0:
-        return np.zeros(len(points), dtype=np.int32), palette
-    rgb = color(lm, np.asarray(points, dtype=np.float32), device=device, threads=threads)
-    # nearest palette colour, one palette row at a time: (N,) memory, not (N, M, 3)
-    ids = np.zeros(len(rgb), dtype=np.int32)
-    best = np.full(len(rgb), np.inf, dtype=np.float32)
-    for k, c in enumerate(palette):
-        d = ((rgb - c) ** 2).sum(axis=1)
-        closer = d < best
-        ids[closer], best[closer] = k, d[closer]
-    return ids, palette
+    # valid by construction (the tests check the invariants on every scene): not checked again
+    mesh = TetMesh._trusted(nodes.numpy().reshape(-1, 3), tets.numpy().reshape(-1, 4), material.numpy(), stats)
+    clock.lap("mesh")
+    return _clocked(mesh, clock, start)
