@@ -17,7 +17,7 @@ if not _os.environ.get("WARPBLOB_VERBOSE"):
     _wp.config.log_level = 30
 
 from . import scenes  # noqa: E402
-from ._errors import MeshError, ModelError, ResourceError, SceneError, SimulationError, WarpblobError
+from ._errors import MeshError, ModelError, ResourceError, SceneError, SimulationError, ToolError, WarpblobError
 from ._linearize import LinearModel, linearize
 from ._parallel import set_thread_count, thread_count
 from .field import color, evaluate, field, gradient
@@ -25,6 +25,7 @@ from . import mesh
 from .mesh import SurfaceMesh, TetMesh, TetQuality, TetStructure, quality
 from .polygonize import polygonize
 from .tetrahedralize import tetrahedralize
+from . import tools
 from .tree import (
     ISO_DISTANCE,
     ISO_VALUE,
@@ -71,6 +72,7 @@ __all__ = [
     "ResourceError",
     "MeshError",
     "SimulationError",
+    "ToolError",
     "ISO_VALUE",
     "ISO_DISTANCE",
     "Node",
@@ -113,4 +115,5 @@ __all__ = [
     "thread_count",
     "set_thread_count",
     "scenes",
+    "tools",
 ]

@@ -1,6 +1,6 @@
 """Exception types raised by warpblob at its Python boundary."""
 
-__all__ = ["WarpblobError", "ModelError", "SceneError", "ResourceError", "MeshError", "SimulationError"]
+__all__ = ["WarpblobError", "ModelError", "SceneError", "ResourceError", "MeshError", "SimulationError", "ToolError"]
 
 
 class WarpblobError(Exception):
@@ -25,3 +25,7 @@ class MeshError(WarpblobError, ValueError):
 
 class SimulationError(WarpblobError, ValueError):
     """A simulation got a bad parameter or mesh, or a step diverged."""
+
+
+class ToolError(WarpblobError, ValueError):
+    """A tool or tool path got a bad parameter (non-increasing times, NaN poses, an open mesh)."""
