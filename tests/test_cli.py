@@ -79,13 +79,19 @@ def test_field_bad_device(tmp_path):
 
 
 def test_demo_writes_stage_pictures_and_summary(tmp_path):
-    out = tmp_path / "out"
-    r = run_cli("demo", "--out", str(out), "--scene", "peanut", "--resolution", "64", "--cellsize", "0.1")
+    out = tmp_path / "new" / "out"  # missing folders are made
+    r = run_cli(
+        "demo", "--out", str(out), "--scene", "peanut", "--resolution", "64", "--cellsize", "0.1", "--samples", "50000"
+    )
     assert r.returncode == 0, r.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["peanut"]["primitives"] == 2
     assert 0.0 < summary["peanut"]["inside_fraction"] < 1.0
-    assert summary["peanut"]["polygonize"]["closed_manifold"] is True
+    poly, mc = summary["peanut"]["polygonize"], summary["peanut"]["volume_monte_carlo"]
+    assert poly["closed_manifold"] is True and poly["shells"] == 1  # two blended points: one solid
+    assert mc["samples"] == 50000 and abs(poly["volume"] - mc["volume"]) < 4 * mc["standard_error"]
+    text = (out / "summary.txt").read_text()
+    assert "50,000 points" in text and "shells" in text
     for name in ("peanut_slices.png", "peanut_mesh.png"):
         png = (out / name).read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
@@ -119,13 +125,67 @@ def test_polygonize_writes_a_usd_mesh(tmp_path):
     [
         (("--cellsize", "-1", "--out", "m.usda"), "cellsize"),
         (("--cellsize", "0.1", "--out", "m.obj"), "m.obj"),
-        (("--cellsize", "0.1", "--out", "no/such/dir/m.usda"), "does not exist"),
+        (("--cellsize", "0.1", "--out", "a_file/m.usda"), "is a file"),
     ],
 )
 def test_polygonize_errors(tmp_path, args, words):
+    (tmp_path / "a_file").write_text("")
     r = run_cli("polygonize", "tumor", *args, cwd=tmp_path)
     assert r.returncode == 1 and "Traceback" not in r.stderr and words in r.stderr
-    assert not list(tmp_path.glob("*.usda"))
+    assert not list(tmp_path.rglob("*.usda"))
+
+
+def test_polygonize_makes_missing_folders(tmp_path):
+    out = tmp_path / "meshes" / "tumor" / "m.usdc"
+    png = tmp_path / "pictures" / "t.png"
+    r = run_cli("polygonize", "tumor", "--cellsize", "0.2", "--out", str(out), "--png", str(png))
+    assert r.returncode == 0, r.stderr
+    assert wb.usd.load_mesh(out).is_closed_manifold() and png.stat().st_size > 5000
+
+
+# every subcommand that writes: a bad output path next to a scene that does not exist. The error
+# must name the output, so the outputs were checked before the scene was even looked up.
+BAD_OUTPUTS = [
+    (("demo", "--out", "a_file"), "is a file, not a folder"),
+    (("demo", "--out", "a_file/pictures"), "is a file, so no folder"),
+    (("demo", "--scene", "no_such_scene", "--out", "x"), "--scene must be"),
+    (("polygonize", "no_such_scene", "--cellsize", "0.1", "--out", "m.obj"), "--out must be a .usda, .usdc, .usd file"),
+    (("polygonize", "no_such_scene", "--cellsize", "0.1", "--out", "a_file/m.usda"), "is a file"),
+    (("polygonize", "no_such_scene", "--cellsize", "0.1", "--out", "a_folder.usda"), "is a folder"),
+    (("polygonize", "no_such_scene", "--cellsize", "0.1", "--out", "m.usda", "--png", "m.jpg"), "--png must be a .png"),
+    (("tetrahedralize", "no_such_scene", "--cellsize", "0.1", "--out", "v.vtk"), "--out must be"),
+    (("tetrahedralize", "no_such_scene", "--cellsize", "0.1", "--out", "a_file/v.usda"), "is a file"),
+    (("field", "no_such_scene", "--points", "missing.npy", "--out", "f.txt"), "--out must be a .npy file"),
+    (("field", "no_such_scene", "--points", "missing.npy", "--out", "a_file/f.npy"), "is a file"),
+]
+
+
+@pytest.mark.parametrize("args, words", BAD_OUTPUTS, ids=[" ".join(a) for a, _ in BAD_OUTPUTS])
+def test_outputs_are_checked_before_any_work(tmp_path, args, words):
+    (tmp_path / "a_file").write_text("")
+    (tmp_path / "a_folder.usda").mkdir()
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    r = run_cli(*args, cwd=tmp_path)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert words in r.stderr and "unknown scene" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing written, no folder made
+
+
+def test_unwritable_output_folder_is_refused(tmp_path, monkeypatch, capsys):
+    """os.access stands in for a read-only folder (the tests may run as root, who can write anywhere)."""
+    from warpblob import cli
+
+    monkeypatch.setattr(cli.os, "access", lambda path, mode: os.path.abspath(path) != str(tmp_path))
+    for args in (
+        ["demo", "--out", str(tmp_path / "out")],
+        ["polygonize", "no_such_scene", "--cellsize", "0.1", "--out", str(tmp_path / "m.usda")],
+        ["field", "no_such_scene", "--points", "p.npy", "--out", str(tmp_path / "f.npy")],
+    ):
+        assert cli.main(args) == 1
+        err = capsys.readouterr().err
+        assert "is not writable" in err and str(tmp_path) in err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_info_and_field_read_usd_scenes(tmp_path):
@@ -140,7 +200,7 @@ def test_info_and_field_read_usd_scenes(tmp_path):
     np.testing.assert_allclose(np.load(tmp_path / "f.npy"), wb.field(wb.scenes.tumor(), pts), atol=1e-6)
 
 
-@pytest.mark.parametrize("content, words", [(None, "does not exist"), ("#usda 1.0\n(\n", "scene.usda")])
+@pytest.mark.parametrize("content, words", [(None, "scene.usda: no such file"), ("#usda 1.0\n(\n", "scene.usda")])
 def test_bad_usd_scene_is_one_line(tmp_path, content, words):
     path = tmp_path / "scene.usda"
     if content is not None:

@@ -141,3 +141,16 @@ def test_format_quality_report():
     assert "min 1 " in text and "(1 = regular tet)" in text and "inverted tets         0" in text
     assert "dihedral angles (deg):" in text and "aspect ratio (beta):" in text
     assert len(lines) == 7 + 18 + 1 + len(ASPECT_RATIO_BINS) - 1
+
+
+def test_repr_is_a_short_summary():
+    # Kuhn's six tets of a cube have dihedral angles of 45, 60 and 90 degrees only
+    q = grid_mesh(4).quality()
+    text = repr(q)
+    assert len(text) < 400 and len(text.splitlines()) <= 4
+    assert f"{q.tet_count:,} tets" in text and f"{q.node_count:,} nodes" in text
+    assert "dihedral angles [45.00, 90.00] deg" in text and "inverted tets 0" in text
+    cube = cube_mesh()
+    flipped = TetMesh(cube.nodes, np.concatenate([cube.tets[:1, [0, 2, 1, 3]], cube.tets[1:]]))
+    assert "inverted tets 1" in repr(flipped.quality())
+    assert "0 tets" in repr(quality(TetMesh(np.zeros((0, 3)), np.zeros((0, 4), dtype=int))))

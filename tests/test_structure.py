@@ -588,3 +588,17 @@ def test_check_reports_a_broken_structure():
     s._stores["cell"].arrays["edges"][0, [0, 1]] = s._stores["cell"].arrays["edges"][0, [1, 0]]
     with pytest.raises(wb.WarpblobError, match="a cell's edges are not those of its nodes"):
         s.check()
+
+
+def test_repr_is_a_short_summary():
+    n = 4
+    s = TetStructure.from_tetmesh(grid_mesh(n))
+    text = repr(s)
+    assert len(text) < 400 and len(text.splitlines()) <= 3
+    # counts of a Kuhn grid (see test_structured_grid_counts)
+    edges = 3 * n * (n + 1) ** 2 + 3 * n * n * (n + 1) + n**3
+    assert f"{(n + 1) ** 3:,} nodes" in text and f"{edges:,} edges" in text and f"{6 * n**3:,} cells" in text
+    assert "0 removals pending" in text and "x [0, 1]" in text
+    s.remove_cell(0)
+    assert f"{6 * n**3 - 1:,} cells" in repr(s) and "1 removals pending" in repr(s)
+    assert repr(s.cell(3)) == "CellView(index=3)" and repr(s.node(0)) == "NodeView(index=0)"

@@ -259,7 +259,7 @@ def test_usd_errors(tmp_path):
         mesh.to_usd(tmp_path / "mesh.obj")
     with pytest.raises(wb.WarpblobError, match="prim_path"):
         mesh.to_usd(tmp_path / "mesh.usda", prim_path="relative")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(wb.SceneError, match="does not exist"):
         mesh.to_usd(tmp_path / "missing" / "mesh.usda")
     with pytest.raises(wb.SceneError, match="no such file"):
         TetMesh.from_usd(tmp_path / "nothing.usda")
@@ -279,3 +279,18 @@ def test_usd_errors(tmp_path):
     bad.Save()
     with pytest.raises(wb.SceneError, match="names a node outside"):
         TetMesh.from_usd(tmp_path / "bad.usda")
+
+
+def test_repr_is_a_short_summary():
+    mesh = grid_mesh(6)
+    text = repr(mesh)
+    assert len(text) < 400 and len(text.splitlines()) <= 5
+    assert f"{mesh.node_count:,} nodes" in text and f"{mesh.tet_count:,} tets" in text
+    assert "x [0, 1]" in text and "inverted tets 0" in text
+    assert f"volume {mesh.volume():.6g}" in text
+    # many materials: a few counts, then how many ids
+    many = TetMesh(mesh.nodes, mesh.tets, np.arange(mesh.tet_count) % 9)
+    assert len(repr(many)) < 400 and "(9 ids)" in repr(many)
+    inverted = TetMesh(mesh.nodes, mesh.tets[:, [0, 2, 1, 3]])
+    assert f"inverted tets {mesh.tet_count:,}" in repr(inverted)
+    assert "0 nodes, 0 tets" in repr(TetMesh(np.zeros((0, 3)), np.zeros((0, 4), dtype=int)))

@@ -501,7 +501,7 @@ def test_missing_prim_path_and_file(tmp_path):
         wbusd.load_model(path, prim_path="/Model/cylinder_1/guide")
     with pytest.raises(wb.SceneError, match="absolute"):
         wbusd.load_model(path, prim_path="Model")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(wb.SceneError, match=re.escape(str(tmp_path / "absent.usda"))):
         wbusd.load_model(tmp_path / "absent.usda")
 
 
@@ -535,7 +535,7 @@ def test_failed_save_writes_nothing(tmp_path):
         wbusd.save_model(wb.scenes.peanut(), tmp_path / "x.obj")
     with pytest.raises(wb.SceneError, match="prim_path"):
         wbusd.save_model(wb.scenes.peanut(), tmp_path / "x.usda", prim_path="/A/B")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(wb.SceneError, match="does not exist"):
         wbusd.save_model(wb.scenes.peanut(), tmp_path / "missing" / "x.usda")
     assert list(tmp_path.iterdir()) == []
 
@@ -557,3 +557,85 @@ def test_failed_save_keeps_the_old_file_and_leaves_no_temporary(tmp_path, monkey
     wbusd.save_model(wb.scenes.tumor(), path)
     assert [p.name for p in tmp_path.iterdir()] == ["m.usda"]
     assert wbusd.load_model(path).primitive_count() == 10
+
+
+WRITERS = {
+    "save_model": lambda path: wbusd.save_model(wb.scenes.peanut(), path),
+    "save_mesh": lambda path: wbusd.save_mesh(wb.polygonize(wb.scenes.peanut(), cellsize=0.3), path),
+    "TetMesh.to_usd": lambda path: wb.TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]).to_usd(path),
+}
+
+
+@pytest.mark.parametrize("writer", list(WRITERS))
+def test_writers_check_the_path_first_and_write_atomically(tmp_path, writer, monkeypatch):
+    write = WRITERS[writer]
+    (tmp_path / "folder.usda").mkdir()
+    for bad, words in (
+        (tmp_path / "missing" / "x.usda", "does not exist"),
+        (tmp_path / "x.obj", "must end in"),
+        (tmp_path / "folder.usda", "is a folder"),
+    ):
+        with pytest.raises(wb.SceneError, match=words) as info:
+            write(bad)
+        assert str(bad) in str(info.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.usda"]
+    path = write(tmp_path / "m.usda")
+    before = path.read_bytes()
+
+    def broken_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(usd_io.os, "replace", broken_replace)
+    with pytest.raises(OSError, match="disk full"):
+        write(path)
+    assert path.read_bytes() == before  # the old file, whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.usda", "m.usda"]  # no temporary left
+
+
+def _mesh_file(tmp_path):
+    return wbusd.save_mesh(wb.polygonize(wb.scenes.peanut(), cellsize=0.3), tmp_path / "mesh.usda")
+
+
+LOADERS = {
+    "load_model": (wbusd.load_model, lambda tmp: wbusd.save_model(wb.scenes.peanut(), tmp / "model.usda")),
+    "load_mesh": (wbusd.load_mesh, _mesh_file),
+    "TetMesh.from_usd": (
+        wb.TetMesh.from_usd,
+        lambda tmp: wb.TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]).to_usd(tmp / "tets.usda"),
+    ),
+}
+
+
+@pytest.mark.parametrize("case", ["missing file", "folder", "not USD", "missing prim"])
+@pytest.mark.parametrize("loader", list(LOADERS))
+def test_every_loader_raises_scene_error_naming_the_path(tmp_path, loader, case):
+    load, make = LOADERS[loader]
+    kwargs = {}
+    if case == "missing file":
+        path = tmp_path / "absent.usda"
+    elif case == "folder":
+        path = tmp_path / "folder.usda"
+        path.mkdir()
+    elif case == "not USD":
+        path = tmp_path / "text.usda"
+        path.write_text("hello, this is not a scene\n")
+    else:
+        path = make(tmp_path)
+        kwargs = {"prim_path": "/Nothing"}
+    with pytest.raises(wb.SceneError) as info:
+        load(path, **kwargs)
+    assert str(path) in str(info.value)
+    if case == "missing prim":
+        assert "/Nothing" in str(info.value)
+
+
+def test_load_mesh_round_trip_and_wrong_prim_kind(tmp_path):
+    mesh = wb.polygonize(wb.scenes.peanut(), cellsize=0.3)
+    path = wbusd.save_mesh(mesh, tmp_path / "mesh.usda")
+    back = wbusd.load_mesh(path)
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+    np.testing.assert_allclose(back.vertices, mesh.vertices)
+    np.testing.assert_array_equal(wbusd.load_mesh(path, prim_path="/Surface").faces, mesh.faces)
+    model = wbusd.save_model(wb.scenes.peanut(), tmp_path / "model.usda")
+    with pytest.raises(wb.SceneError, match="not a UsdGeom.Mesh"):
+        wbusd.load_mesh(model)

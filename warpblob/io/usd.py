@@ -215,7 +215,7 @@ def save_model(
 
     Args:
         model: the BlobTree.
-        path: target file; its directory must exist.
+        path: target file; its folder must exist.
         prim_path: the root prim, a single name under the pseudo-root.
         meters_per_unit: stage metres per model unit (default 0.01: centimetres).
         doc: optional stage documentation string.
@@ -225,7 +225,8 @@ def save_model(
 
     Raises:
         ModelError: ``model`` is not a tree of warpblob nodes.
-        SceneError: bad ``path`` suffix, ``prim_path`` or ``meters_per_unit``.
+        SceneError: bad ``path`` suffix, a missing folder, bad ``prim_path``
+            or ``meters_per_unit``.
         OSError: the file could not be written.
 
     Example:
@@ -235,9 +236,7 @@ def save_model(
         >>> m.primitive_count()
         2
     """
-    target = pathlib.Path(path)
-    if target.suffix not in _SUFFIXES:
-        raise SceneError(f"save_model: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
+    target = check_target(path, "save_model")
     root = Sdf.Path(str(prim_path)) if Sdf.Path.IsValidPathString(str(prim_path)) else Sdf.Path()
     if not (root.IsRootPrimPath() and root.IsAbsolutePath()):
         raise SceneError(f"save_model: prim_path must be a root prim path like '/Model', got {prim_path!r}")
@@ -249,12 +248,37 @@ def save_model(
     return export_atomically(layer, target, "save_model")
 
 
-def export_atomically(layer, target: pathlib.Path, who: str) -> pathlib.Path:
-    """Export ``layer`` to a temporary file beside ``target``, then rename it into place."""
-    directory = target.parent
-    if not directory.is_dir():
-        raise FileNotFoundError(f"{who}: directory {str(directory)!r} does not exist")
-    temporary = directory / f".{target.name}.{secrets.token_hex(4)}.tmp{target.suffix}"
+def check_target(path, who: str) -> pathlib.Path:
+    """``path`` as a :class:`pathlib.Path` once it is fit to write a USD file to.
+
+    Writers call it before any work, so a bad path costs nothing.
+
+    Raises:
+        SceneError: the suffix is not ``.usda``, ``.usdc`` or ``.usd``, the
+            folder does not exist, or ``path`` is a folder.
+    """
+    target = pathlib.Path(path)
+    if target.suffix not in _SUFFIXES:
+        raise SceneError(f"{who}: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
+    if not target.parent.is_dir():
+        raise SceneError(f"{who}: folder {str(target.parent)!r} of {str(path)!r} does not exist")
+    if target.is_dir():
+        raise SceneError(f"{who}: {str(path)!r} is a folder")
+    return target
+
+
+def export_atomically(layer, target, who: str) -> pathlib.Path:
+    """Export ``layer`` to a temporary file beside ``target``, then rename it into place.
+
+    ``target`` is either left untouched or complete, and no temporary file
+    is left behind.
+
+    Raises:
+        SceneError: see :func:`check_target`.
+        OSError: USD could not write the file, or the rename failed.
+    """
+    target = check_target(target, who)
+    temporary = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp{target.suffix}"
     try:
         if not layer.Export(str(temporary)):
             raise OSError(f"{who}: USD could not write {str(temporary)!r}")
@@ -317,6 +341,19 @@ def author_mesh(stage, path: str, mesh):
 def save_mesh(mesh, path, *, prim_path: str = "/Surface", meters_per_unit: float = METERS_PER_UNIT) -> pathlib.Path:
     """Write a :class:`~warpblob.mesh.SurfaceMesh` as a ``UsdGeom.Mesh`` stage (atomically).
 
+    Args:
+        mesh: the mesh (see :func:`author_mesh` for what is written).
+        path: a ``.usda``, ``.usdc`` or ``.usd`` file; its folder must exist.
+        prim_path: the Mesh prim, a root prim (the stage's default prim).
+        meters_per_unit: stage metres per model unit.
+
+    Returns:
+        ``path`` as a :class:`pathlib.Path`.
+
+    Raises:
+        SceneError: bad suffix, missing folder or bad ``prim_path``.
+        OSError: the file could not be written.
+
     Example:
         >>> import tempfile, os, warpblob as wb, warpblob.usd
         >>> mesh = wb.polygonize(wb.scenes.peanut(), cellsize=0.2)
@@ -324,9 +361,7 @@ def save_mesh(mesh, path, *, prim_path: str = "/Surface", meters_per_unit: float
         >>> wb.usd.load_mesh(path).face_count == mesh.face_count
         True
     """
-    target = pathlib.Path(path)
-    if target.suffix not in _SUFFIXES:
-        raise SceneError(f"save_mesh: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
+    target = check_target(path, "save_mesh")
     name = str(prim_path).strip("/")
     if not name or "/" in name or not Sdf.Path.IsValidIdentifier(name):
         raise SceneError(f"save_mesh: prim_path must be a root prim path like '/Surface', got {prim_path!r}")
@@ -336,20 +371,56 @@ def save_mesh(mesh, path, *, prim_path: str = "/Surface", meters_per_unit: float
     return export_atomically(stage.GetRootLayer(), target, "save_mesh")
 
 
+def open_stage(path, who: str):
+    """Open and compose the USD file ``path``, or raise a :class:`SceneError` naming it.
+
+    Every reader goes through here, so a missing file, a folder or a file
+    that is not USD fails the same way whichever reader was called.
+    """
+    source = os.fspath(path)
+    if not os.path.exists(source):
+        raise SceneError(f"{who}: {source}: no such file")
+    if not os.path.isfile(source):
+        raise SceneError(f"{who}: {source}: not a file")
+    try:
+        stage = Usd.Stage.Open(source, Usd.Stage.LoadAll)
+    except Tf.ErrorException as err:
+        raise SceneError(f"{who}: {source}: not a readable USD file ({_one_line(err)})") from None
+    if stage is None:
+        raise SceneError(f"{who}: {source}: not a readable USD file")
+    return stage
+
+
 def load_mesh(path, prim_path: str | None = None):
-    """Read a triangle ``UsdGeom.Mesh`` (the default prim, or ``prim_path``) as a SurfaceMesh."""
+    """Read a triangle ``UsdGeom.Mesh`` as a :class:`~warpblob.mesh.SurfaceMesh`.
+
+    Args:
+        path: a USD file.
+        prim_path: the Mesh prim; default: the default prim, or the only root
+            prim of a stage without one.
+
+    Returns:
+        The mesh (normals zero and colours white where the prim has none).
+
+    Raises:
+        SceneError: the file is missing or not USD, the prim is missing or not
+            a triangle ``UsdGeom.Mesh``; the message names the file.
+
+    Example:
+        >>> import warpblob as wb, warpblob.usd
+        >>> try:
+        ...     wb.usd.load_mesh("no/such/mesh.usda")
+        ... except wb.SceneError as err:
+        ...     print(err)
+        load_mesh: no/such/mesh.usda: no such file
+    """
     from ..mesh import SurfaceMesh
 
-    source = str(path)
-    if not os.path.exists(source):
-        raise FileNotFoundError(f"load_mesh: {source!r} does not exist")
-    try:
-        stage = Usd.Stage.Open(source)
-    except Tf.ErrorException as err:
-        raise SceneError(f"{source}: not a USD file ({_one_line(err)})") from None
-    prim = stage.GetPrimAtPath(prim_path) if prim_path else stage.GetDefaultPrim()
-    if not prim or not prim.IsA(UsdGeom.Mesh):
-        raise SceneError(f"{source}: {prim_path or 'the default prim'} is not a UsdGeom.Mesh")
+    source = os.fspath(path)
+    stage = open_stage(source, "load_mesh")
+    prim = _root_prim(stage, source, prim_path)
+    if not prim.IsA(UsdGeom.Mesh):
+        raise SceneError(f"{source}: prim <{prim.GetPath()}> is {_type_of(prim)}, not a UsdGeom.Mesh")
     geom = UsdGeom.Mesh(prim)
     counts = np.asarray(geom.GetFaceVertexCountsAttr().Get() or [], dtype=np.int32)
     if np.any(counts != 3):
@@ -605,19 +676,12 @@ def load_model(path, prim_path=None) -> Node:
         The model (a new tree).
 
     Raises:
-        FileNotFoundError: ``path`` is not a file.
-        SceneError: the file is not USD, the prim is missing, or the scene is
-            not a valid model; the message names the prim and the attribute.
+        SceneError: the file is missing or not USD, the prim is missing, or
+            the scene is not a valid model; the message names the file, the
+            prim and the attribute.
     """
     source = os.fspath(path)
-    if not os.path.isfile(source):
-        raise FileNotFoundError(f"load_model: no such file: {source!r}")
-    try:
-        stage = Usd.Stage.Open(source, Usd.Stage.LoadAll)
-    except Tf.ErrorException as err:
-        raise SceneError(f"{source}: not a readable USD file ({_one_line(err)})") from None
-    if stage is None:
-        raise SceneError(f"{source}: not a readable USD file")
+    stage = open_stage(source, "load_model")
     prim = _root_prim(stage, source, prim_path)
     _check_composition(stage, source, prim.GetPath())
     return _Reader(source).read(prim)

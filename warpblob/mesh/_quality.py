@@ -104,7 +104,7 @@ def measure_tets_kernel(
     aspect_ratio[t] = beta
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class TetQuality:
     """Per-tet quality arrays and the mesh summary (SPEC section 3).
 
@@ -193,6 +193,15 @@ class TetQuality:
     def inverted_count(self) -> int:
         """Tets with volume <= 0."""
         return int(np.count_nonzero(self.tet_volume <= 0))
+
+    def __repr__(self) -> str:
+        return (
+            f"TetQuality: {self.tet_count:,} tets, {self.node_count:,} nodes, volume {self.volume:.6g}\n"
+            f"  dihedral angles [{self.dihedral_min:.2f}, {self.dihedral_max:.2f}] deg, "
+            f"inverted tets {self.inverted_count:,}\n"
+            f"  aspect ratio (beta) [{self.aspect_ratio_min:.4g}, {self.aspect_ratio_max:.4g}], "
+            f"Vmax/Vmin {self.volume_ratio:.4g}, lmax/lmin {self.edge_ratio:.4g}"
+        )
 
     def summary(self) -> dict:
         """The mesh summary as a dict of plain numbers (for stats, JSON and the CLI)."""

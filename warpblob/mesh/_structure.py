@@ -36,7 +36,7 @@ removal fires an event to the observers (:meth:`TetStructure.subscribe`).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -46,6 +46,7 @@ from .._device import resolve_device
 from .._errors import WarpblobError
 from .._parallel import launch
 from .._stages import mark_heads_kernel
+from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
 __all__ = [
@@ -468,7 +469,7 @@ def _stores() -> dict:
 class NodeView:
     """A node of a :class:`TetStructure` (reads the structure's arrays; holds no data)."""
 
-    structure: TetStructure
+    structure: TetStructure = field(repr=False)  # its repr is several lines; the index says which
     index: int
 
     @property
@@ -495,7 +496,7 @@ class NodeView:
 class EdgeView:
     """An edge of a :class:`TetStructure`."""
 
-    structure: TetStructure
+    structure: TetStructure = field(repr=False)  # its repr is several lines; the index says which
     index: int
 
     @property
@@ -516,7 +517,7 @@ class EdgeView:
 class FaceView:
     """A face of a :class:`TetStructure`."""
 
-    structure: TetStructure
+    structure: TetStructure = field(repr=False)  # its repr is several lines; the index says which
     index: int
 
     @property
@@ -541,7 +542,7 @@ class FaceView:
 class CellView:
     """A cell (tet) of a :class:`TetStructure`."""
 
-    structure: TetStructure
+    structure: TetStructure = field(repr=False)  # its repr is several lines; the index says which
     index: int
 
     @property
@@ -777,9 +778,12 @@ class TetStructure:
         return {k: tuple(v) for k, v in self._pending.items()}
 
     def __repr__(self) -> str:
+        pending = sum(len(v) for v in self._pending.values())
+        alive = self._stores["node"]["alive"]
         return (
-            f"TetStructure(nodes={self.node_count}, edges={self.edge_count}, "
-            f"faces={self.face_count}, cells={self.cell_count})"
+            f"TetStructure: {self.node_count:,} nodes, {self.edge_count:,} edges, {self.face_count:,} faces, "
+            f"{self.cell_count:,} cells (live; {pending:,} removals pending)\n"
+            + bounds_text(self._stores["node"]["position"][alive])
         )
 
     # -- checks -----------------------------------------------------------------

@@ -9,6 +9,48 @@ import numpy as np
 __all__ = ["SurfaceMesh", "triangle_min_angles"]
 
 
+def _components(count: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected components of the graph on ``count`` elements with edges ``(a[i], b[i])``.
+
+    Hook-and-compress (Shiloach & Vishkin 1982, without the random mating):
+    every pass hangs the larger of two joined roots under the smaller, then
+    jumps pointers until each element points at its root. Roots only ever
+    point to smaller ids, so no cycle can form, and every pass is a handful
+    of array operations over the edges still joining two trees.
+
+    Args:
+        count: number of elements.
+        a, b: (E,) integer element ids, the two ends of each edge.
+
+    Returns:
+        (count,) int64: the smallest element id of each element's component.
+    """
+    label = np.arange(count, dtype=np.int64)
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    while True:
+        la, lb = label[a], label[b]
+        joining = la != lb
+        if not joining.any():
+            return label
+        a, b, la, lb = a[joining], b[joining], la[joining], lb[joining]
+        # any one of the smaller roots will do: among repeated indices one write wins
+        label[np.maximum(la, lb)] = np.minimum(la, lb)
+        while True:
+            up = label[label]
+            if np.array_equal(up, label):
+                break
+            label = up
+
+
+def bounds_text(points) -> str:
+    """One repr line: the box of (N, 3) ``points`` as ``x [lo, hi]  y [lo, hi]  z [lo, hi]``."""
+    p = np.asarray(points).reshape(-1, 3)
+    if not len(p):
+        return "  bounds: none (no points)"
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    return "  bounds " + "  ".join(f"{a} [{lo[i]:.4g}, {hi[i]:.4g}]" for i, a in enumerate("xyz"))
+
+
 def triangle_min_angles(vertices, faces) -> np.ndarray:
     """Smallest interior angle of each triangle of ``faces`` (F, 3) over ``vertices`` (V, 3), degrees."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -24,7 +66,7 @@ def triangle_min_angles(vertices, faces) -> np.ndarray:
     return np.min(angles, axis=0)
 
 
-@dataclass(eq=False)
+@dataclass(eq=False, repr=False)
 class SurfaceMesh:
     """A shared-vertex triangle mesh with per-vertex normals and colours.
 
@@ -78,16 +120,95 @@ class SurfaceMesh:
         edges, counts = np.unique(e, axis=0, return_counts=True)
         return edges, counts
 
+    def shells(self) -> np.ndarray:
+        """Shell (connected component over shared edges) of each face, (F,) int32.
+
+        Shells are numbered 0, 1, ... in the order of their first face. A
+        closed solid with ``k`` separate cavities has ``k + 1`` shells.
+
+        Example:
+            >>> import warpblob as wb
+            >>> mesh = wb.polygonize(wb.scenes.eggshell(), cellsize=0.1)  # outer and inner surface
+            >>> int(mesh.shells().max()) + 1
+            2
+        """
+        f = self.face_count
+        edges = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+        keys = edges[:, 0] * max(self.vertex_count, 1) + edges[:, 1]
+        order = np.argsort(keys, kind="stable")
+        same = keys[order[1:]] == keys[order[:-1]]
+        # faces listed next to each other in edge order share that edge (a chain covers edges of 3+ faces)
+        label = _components(f, order[:-1][same] // 3, order[1:][same] // 3)
+        return np.unique(label, return_inverse=True)[1].astype(np.int32).reshape(-1)
+
+    def shell_count(self) -> int:
+        """Number of shells (see :meth:`shells`); 0 for a mesh without faces."""
+        return int(self.shells().max()) + 1 if self.face_count else 0
+
     def is_closed_manifold(self) -> bool:
-        """Every edge in exactly two faces, used once in each direction (consistent orientation)."""
+        """Whether the mesh is a closed, consistently oriented 2-manifold.
+
+        True when every edge is in exactly two faces, used once in each
+        direction, and the faces around every vertex form one closed fan (a
+        pinched vertex, where two fans meet at one point, is not a manifold).
+        Vertices used by no face are ignored.
+
+        Example:
+            >>> import numpy as np
+            >>> from warpblob.mesh import SurfaceMesh
+            >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float32)
+            >>> tet = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+            >>> SurfaceMesh(v, tet, v, v).is_closed_manifold()
+            True
+            >>> w = np.vstack([v, -v[1:]])  # a mirrored copy touching the first at the origin
+            >>> both = np.vstack([tet, np.where(tet > 0, tet + 3, 0)[:, ::-1]])
+            >>> SurfaceMesh(w, both, w, w).is_closed_manifold()
+            False
+        """
         if self.face_count == 0:
             return False
-        directed = self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-        _, counts = self.edge_face_counts()
-        if not np.all(counts == 2):
+        f = self.faces.astype(np.int64)
+        if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])):
             return False
-        keys = directed[:, 0].astype(np.int64) * (self.vertex_count + 1) + directed[:, 1]
-        return bool(len(np.unique(keys)) == len(keys))
+        n = max(self.vertex_count, int(f.max()) + 1)
+        # corner c = 3 i + k of face i sits at vertex f[i, k]; its edge runs to the next corner's vertex
+        at, to = f.ravel(), np.roll(f, -1, axis=1).ravel()
+        keys = np.minimum(at, to) * n + np.maximum(at, to)
+        order = np.argsort(keys)
+        k = keys[order]
+        # sorted, the edges of a closed mesh come in pairs, and an oriented one runs each pair both ways
+        if len(k) % 2 or not np.array_equal(k[0::2], k[1::2]) or np.any(k[1:-1:2] == k[2::2]):
+            return False
+        forward = (at < to)[order]
+        if np.any(forward[0::2] == forward[1::2]):
+            return False
+        twin = np.empty_like(order)
+        twin[order[0::2]], twin[order[1::2]] = order[1::2], order[0::2]
+        # around vertex v the face after corner c = (v, a, b) holds the twin of edge b -> v; walking
+        # from one corner, a manifold vertex gets back only after visiting all its corners
+        corners = np.arange(len(at))
+        after = twin[corners - corners % 3 + (corners + 2) % 3]
+        valence = np.bincount(at, minlength=n)
+        start = np.full(n, -1, dtype=np.int64)
+        start[at] = corners  # any corner of each vertex
+        used = valence > 0
+        start, left = start[used], valence[used]
+        walk, step = start, 1
+        while len(walk):
+            walk = after[walk]
+            if np.any((walk == start) & (step < left)):
+                return False  # back early: another fan of faces meets this one at the vertex
+            going = left > step
+            walk, start, left = walk[going], start[going], left[going]
+            step += 1
+        return True
+
+    def __repr__(self) -> str:
+        lines = [f"SurfaceMesh: {self.vertex_count:,} vertices, {self.face_count:,} triangles"]
+        lines.append(bounds_text(self.vertices))
+        if self.face_count:
+            lines.append(f"  area {self.area():.6g}, enclosed volume {self.volume():.6g}")
+        return "\n".join(lines)
 
     def numpy(self) -> dict:
         """The arrays as a dict of numpy arrays."""

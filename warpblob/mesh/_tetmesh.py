@@ -23,6 +23,7 @@ import numpy as np
 import warp as wp
 
 from .._errors import SceneError, WarpblobError
+from ._surface import bounds_text
 
 __all__ = ["TetMesh", "TET_FACES", "TET_EDGES"]
 
@@ -40,7 +41,6 @@ TET_EDGES_WP = wp.constant(wp.types.matrix(shape=(6, 2), dtype=wp.int32)(*TET_ED
 #: (4, 4) index into TET_EDGES of the edge joining two local nodes (-1 on the diagonal)
 TET_LOCAL_EDGE_WP = wp.constant(wp.types.matrix(shape=(4, 4), dtype=wp.int32)(*_local_edge.ravel().tolist()))
 
-_SUFFIXES = (".usda", ".usdc", ".usd")
 _MATERIAL_ATTR = "warpblob:material"
 
 
@@ -62,7 +62,7 @@ def _int_array(name: str, value, shape_text: str, ndim: int, width: int | None) 
     return np.ascontiguousarray(arr, dtype=np.int32)
 
 
-@dataclass(eq=False, frozen=True)
+@dataclass(eq=False, frozen=True, repr=False)
 class TetMesh:
     """A tetrahedral mesh: shared nodes and positively oriented tets.
 
@@ -143,6 +143,18 @@ class TetMesh:
     @property
     def tet_count(self) -> int:
         return int(self.tets.shape[0])
+
+    def __repr__(self) -> str:
+        volumes = self.volumes()
+        lines = [f"TetMesh: {self.node_count:,} nodes, {self.tet_count:,} tets", bounds_text(self.nodes)]
+        if self.tet_count:
+            inverted = int(np.count_nonzero(volumes <= 0))
+            lines.append(f"  volume {volumes.sum():.6g}, inverted tets {inverted:,}")
+        if self.material is not None:
+            ids, counts = np.unique(self.material, return_counts=True)
+            shown = ", ".join(f"{i}: {c:,}" for i, c in zip(ids[:4].tolist(), counts[:4].tolist()))
+            lines.append(f"  tets per material {shown}" + (f", ... ({len(ids)} ids)" if len(ids) > 4 else ""))
+        return "\n".join(lines)
 
     def _cached(self, name, compute):
         if name not in self._cache:
@@ -262,7 +274,7 @@ class TetMesh:
         either untouched or complete.
 
         Args:
-            path: target file; its directory must exist.
+            path: target file; its folder must exist.
             prim_path: absolute path of the TetMesh prim.
             meters_per_unit: stage metres per model unit (default
                 :data:`warpblob.io.usd.METERS_PER_UNIT`, 0.01: centimetres).
@@ -271,24 +283,21 @@ class TetMesh:
             ``path`` as a :class:`pathlib.Path`.
 
         Raises:
-            WarpblobError: bad suffix, prim path or ``meters_per_unit``.
-            OSError: the directory does not exist or USD could not write.
+            SceneError: bad suffix or missing folder (checked before any work).
+            WarpblobError: bad prim path or ``meters_per_unit``.
+            OSError: USD could not write.
         """
         from pxr import Sdf, UsdGeom, Vt
 
-        from ..io.usd import METERS_PER_UNIT, export_atomically, new_stage
+        from ..io.usd import METERS_PER_UNIT, check_target, export_atomically, new_stage
 
-        target = pathlib.Path(path)
-        if target.suffix not in _SUFFIXES:
-            raise WarpblobError(f"TetMesh.to_usd: path must end in one of {', '.join(_SUFFIXES)}, got {str(path)!r}")
+        target = check_target(path, "TetMesh.to_usd")
         text = str(prim_path)
         if not Sdf.Path.IsValidPathString(text) or not Sdf.Path(text).IsAbsolutePath() or text == "/":
             raise WarpblobError(f"TetMesh.to_usd: prim_path must be an absolute prim path, got {prim_path!r}")
         mpu = METERS_PER_UNIT if meters_per_unit is None else meters_per_unit
         if not (isinstance(mpu, (int, float)) and np.isfinite(mpu) and mpu > 0):
             raise WarpblobError(f"TetMesh.to_usd: meters_per_unit must be a positive number, got {mpu!r}")
-        if not target.parent.is_dir():
-            raise FileNotFoundError(f"TetMesh.to_usd: directory {str(target.parent)!r} does not exist")
         stage = new_stage(meters_per_unit=float(mpu))
         prim = UsdGeom.TetMesh.Define(stage, text)
         stage.SetDefaultPrim(stage.GetPrimAtPath(Sdf.Path(text).GetPrefixes()[0]))
@@ -316,18 +325,16 @@ class TetMesh:
                 first TetMesh under it (or on the stage, without a default prim).
 
         Raises:
-            SceneError: the file cannot be opened, holds no such TetMesh, or
-                its arrays do not make a valid :class:`TetMesh`.
+            SceneError: the file is missing or not USD, holds no such TetMesh,
+                or its arrays do not make a valid :class:`TetMesh`; the
+                message names the file.
         """
-        from pxr import Sdf, Tf, Usd, UsdGeom
+        from pxr import Sdf, Usd, UsdGeom
 
-        source = str(path)
-        if not os.path.isfile(source):
-            raise SceneError(f"{source}: no such file")
-        try:
-            stage = Usd.Stage.Open(source)
-        except Tf.ErrorException as err:
-            raise SceneError(f"{source}: not a readable USD file: {err}") from None
+        from ..io.usd import open_stage
+
+        source = os.fspath(path)
+        stage = open_stage(source, "TetMesh.from_usd")
         if prim_path is not None:
             text = str(prim_path)
             if not Sdf.Path.IsValidPathString(text) or not Sdf.Path(text).IsAbsolutePath():

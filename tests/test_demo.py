@@ -1,0 +1,87 @@
+"""``warpblob demo`` tells the truth: shells, volumes against Monte Carlo, the head cut open and resolved.
+
+The references are independent of the demo: PyVista's connectivity filter
+for the shells, the analytic volume of a sphere, and repeated Monte Carlo
+runs for the standard error.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import warpblob as wb
+from warpblob.cli import _DEMO_CELLSIZE, _monte_carlo_volume
+
+
+def run_cli(*args, cwd=None):
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run(
+        [sys.executable, "-m", "warpblob.cli", *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=600
+    )
+
+
+def test_demo_head_shells_match_pyvista(tmp_path):
+    """A coarse cell size (0.1) splits the head into many spurious shells: the count must still be exact."""
+    import pyvista as pv
+    from pxr import Usd, UsdGeom
+
+    r = run_cli("demo", "--out", str(tmp_path), "--scene", "head", "--cellsize", "0.1", "--resolution", "16",
+                "--samples", "20000")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    summary = json.loads((tmp_path / "summary.json").read_text())["head"]
+    assert summary["model"] == "head (cut away)"
+    poly = summary["polygonize"]
+    stage = Usd.Stage.Open(str(tmp_path / "warpblob_demo.usdc"))
+    geom = UsdGeom.Mesh(stage.GetPrimAtPath("/Demo/head/surface"))
+    points = np.asarray(geom.GetPointsAttr().Get(), dtype=np.float64)
+    faces = np.asarray(geom.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+    assert len(faces) == poly["triangles"]
+    cells = np.column_stack([np.full(len(faces), 3), faces]).ravel()
+    regions = pv.PolyData(points, cells).connectivity(extraction_mode="all")
+    count = len(np.unique(regions.cell_data["RegionId"]))
+    assert poly["shells"] == count > 4
+    assert poly["closed_manifold"] is True  # so sharing a vertex (PyVista) and an edge (warpblob) agree
+    row = next(line for line in (tmp_path / "summary.txt").read_text().splitlines() if line.startswith("head"))
+    assert f" {count} " in row
+
+
+def test_monte_carlo_volume_of_a_sphere_and_its_error_bar():
+    ball = wb.Point((0.0, 0.0, 0.0), 1.0)
+    exact = 4.0 / 3.0 * np.pi * wb.ISO_DISTANCE**3
+    mc, _ = _monte_carlo_volume(ball, samples=400_000, rng=np.random.default_rng(1))
+    assert mc["samples"] == 400_000
+    assert abs(mc["volume"] - exact) < 3 * mc["standard_error"]
+    mesh = wb.polygonize(ball, cellsize=0.03)
+    assert abs(mesh.volume() - mc["volume"]) < 3 * mc["standard_error"]
+    # the error bar is the spread of the estimate: 40 runs of 20,000 points
+    runs = [_monte_carlo_volume(ball, samples=20_000, rng=np.random.default_rng(s))[0] for s in range(40)]
+    spread = np.std([m["volume"] for m in runs], ddof=1)
+    assert 0.7 < spread / np.mean([m["standard_error"] for m in runs]) < 1.4
+
+
+def test_demo_cell_size_resolves_the_head_layers():
+    """At the demo's cell size the cut-away head is one shell per tissue, its volume that of the model,
+    and the cut faces show the tissues' colours."""
+    model = wb.scenes.head(cut_away=True)
+    mesh = wb.polygonize(model, cellsize=_DEMO_CELLSIZE["head"])
+    assert mesh.is_closed_manifold()
+    assert mesh.shell_count() == len(wb.scenes.HEAD_TISSUES)
+    mc, _ = _monte_carlo_volume(model, samples=1_000_000, rng=np.random.default_rng(2))
+    assert abs(mesh.volume() - mc["volume"]) < 3 * mc["standard_error"]
+    # vertices on the cut planes (away from the rounded cut edges) carry exactly the four tissue colours
+    v = mesh.vertices
+    on_cut = (np.abs(v[:, 0]) < 1e-3) & (v[:, 1] < -0.2) & (v[:, 2] > 0.2)
+    colours = np.unique(np.round(mesh.colors[on_cut], 3), axis=0)
+    expected = np.unique(np.round(np.array(list(wb.scenes.HEAD_TISSUES.values())), 3), axis=0)
+    np.testing.assert_allclose(colours, expected, atol=2e-3)
+
+
+@pytest.mark.parametrize("samples", ["1", "-5"])
+def test_demo_refuses_too_few_samples(tmp_path, samples):
+    r = run_cli("demo", "--out", str(tmp_path / "out"), "--samples", samples)
+    assert r.returncode == 2 and "--samples" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
