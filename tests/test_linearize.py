@@ -116,3 +116,38 @@ def test_grid_lists_every_operand_whose_box_holds_the_point():
 def test_linearize_rejects_non_models():
     with pytest.raises(wb.ModelError, match="str"):
         wb.linearize("tumor")
+
+
+def test_grids_of_several_wide_operators_share_the_cell_arrays():
+    """Each wide operator's cells index its own run of ``cell_items`` (the runs
+    follow each other), and list only its own operands, in ascending order,
+    including every operand whose box holds a point of the cell."""
+    rng = np.random.default_rng(8)
+    groups = [
+        wb.Blend(*[wb.Point(rng.uniform(-1, 1, 3) + 3.0 * g, rng.uniform(0.2, 0.5)) for _ in range(8 + 3 * g)])
+        for g in range(6)
+    ]
+    lm = wb.linearize(wb.Union(*groups, *[wb.Point((9.0, k, 0.0), 0.3) for k in range(3)]))
+    wide = np.nonzero(lm.ref >= 0)[0]
+    wide = wide[lm.kind[wide] >= _kinds.PRIMITIVE_KIND_END]
+    assert len(wide) == 7  # the union (9 operands) and its 6 blends
+    end = 0
+    for g in range(len(lm.grid_base)):
+        base, cells = lm.grid_base[g], int(np.prod(lm.grid_dims[g]))
+        assert lm.cell_offsets[base] == end  # this grid's items start where the last grid's ended
+        end = lm.cell_offsets[base + cells]
+        if g + 1 < len(lm.grid_base):
+            assert lm.grid_base[g + 1] == base + cells + 1
+    assert end == len(lm.cell_items)
+    for node in wide:
+        g = lm.ref[node]
+        dims = lm.grid_dims[g]
+        children = np.nonzero(lm.parent == node)[0]
+        pts = rng.uniform(lm.lower[node], lm.upper[node], (500, 3))
+        cell = np.clip(np.floor((pts - lm.grid_lower[g]) * lm.grid_inv_cell[g]).astype(int), 0, dims - 1)
+        flat = lm.grid_base[g] + (cell[:, 2] * dims[1] + cell[:, 1]) * dims[0] + cell[:, 0]
+        for p, c in zip(pts, flat):
+            listed = lm.cell_items[lm.cell_offsets[c] : lm.cell_offsets[c + 1]]
+            assert np.all(np.diff(listed) > 0) and set(listed) <= set(children)
+            holds = children[np.all((lm.lower[children] <= p) & (p <= lm.upper[children]), axis=1)]
+            assert set(holds) <= set(listed)

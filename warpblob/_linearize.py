@@ -373,19 +373,21 @@ def linearize(model: Node) -> LinearModel:
 
     g_lower, g_inv, g_dims, g_base, offsets, items = [], [], [], [], [], []
     base = 0
+    item_count = 0  # items of the grids so far: the next grid's cell offsets start there
     for k, n in enumerate(nodes):
         if n.code in _kinds.SPARSE_KINDS and len(n.children) >= WIDE and not empty[k]:
             kids = [index[id(c)] for c in n.children]
             params[k, 1] = len(kids)  # operand count: interval queries compare it with the cells a ball spans
-            kid_boxes = np.stack([np.stack([lower[c], upper[c]]) for c in kids])
+            kid_boxes = np.stack([lower[kids], upper[kids]], axis=1)
             dims, inv_cell, offs, its = _build_grid((lower[k], upper[k]), kid_boxes, np.array(kids))
             ref[k] = len(g_lower)
             g_lower.append(lower[k])
             g_inv.append(inv_cell)
             g_dims.append(dims)
             g_base.append(base)
-            offsets.append(offs + sum(len(i) for i in items))
+            offsets.append(offs + item_count)
             items.append(its)
+            item_count += len(its)
             base += len(offs)
 
     def arr(x, dtype, shape):

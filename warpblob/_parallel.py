@@ -8,6 +8,8 @@ input right after its arrays and adds it to ``wp.tid()``.
 
 from __future__ import annotations
 
+import atexit
+import concurrent.futures
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -15,12 +17,19 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
+from . import _compile
 from ._errors import WarpblobError
+
+# the lowest module that every kernel-launching part of warpblob imports
+_compile.install()
 
 __all__ = ["launch", "thread_count", "set_thread_count", "check_threads"]
 
 _threads: int | None = None
+#: guards the pool and its size; submissions to the pool happen under it too
+_pool_lock = threading.Lock()
 _pool: ThreadPoolExecutor | None = None
+_pool_size = 0
 _MIN_CHUNK = 1024
 #: pieces per thread of a CPU launch, taken dynamically (load balance)
 _PIECES = 8
@@ -61,11 +70,36 @@ def set_thread_count(n: int | None) -> None:
     _threads = check_threads(n, "thread count")
 
 
-def _executor(n: int) -> ThreadPoolExecutor:
-    global _pool
-    if _pool is None or _pool._max_workers < n:
-        _pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="warpblob")
-    return _pool
+def _submit(work, n: int) -> list[concurrent.futures.Future]:
+    """Run ``work`` on ``n`` pool threads, growing the pool to ``n`` if needed.
+
+    Submitting under the lock means no caller can hold a pool that another
+    one has begun to shut down. A replaced pool is shut down outside the
+    lock: it finishes the work other callers gave it (they are not
+    disturbed, and new launches go to the new pool meanwhile), and its
+    threads have exited when this returns.
+    """
+    global _pool, _pool_size
+    old = None
+    with _pool_lock:
+        if _pool is None or _pool_size < n:
+            old = _pool
+            _pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="warpblob")
+            _pool_size = n
+        futures = [_pool.submit(work) for _ in range(n)]
+    if old is not None:
+        old.shutdown(wait=True)
+    return futures
+
+
+@atexit.register
+def _shutdown() -> None:
+    """Stop the pool's threads at interpreter exit (and forget the pool)."""
+    global _pool, _pool_size
+    with _pool_lock:
+        pool, _pool, _pool_size = _pool, None, 0
+    if pool is not None:
+        pool.shutdown(wait=True)
 
 
 def launch(
@@ -81,6 +115,7 @@ def launch(
     core busy; on CUDA it is one launch. Results do not depend on the split
     (each item is computed by the same code independently).
     """
+    threads = check_threads(threads)
     if dim <= 0:
         return
     device = wp.get_device(device)
@@ -95,7 +130,7 @@ def launch(
     queue = iter(range(pieces))
     lock = threading.Lock()
 
-    def work(_):
+    def work():
         while True:
             with lock:
                 k = next(queue, None)
@@ -103,4 +138,9 @@ def launch(
                 return
             wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[*before, bounds[k], *after], device=device)
 
-    list(_executor(n).map(work, range(n)))
+    # compile (or load from the cache) here, once: the first launch of every
+    # thread would otherwise compile the same module concurrently, n times over
+    wp.load_module(kernel.module, device=device)
+    done, _ = concurrent.futures.wait(_submit(work, n))
+    for f in done:
+        f.result()

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 import warp as wp
 
 from .._device import resolve_device
-from .._errors import WarpblobError
+from .._errors import ModelError
 from .._linearize import LinearModel, linearize
-from .._parallel import launch
+from .._parallel import check_threads, launch
 from . import _kernels
 
 __all__ = [
@@ -34,14 +36,19 @@ def bound_balls(model, centers, radii, *, device=None, threads: int | None = Non
 
     Args:
         centers: (N, 3) ball centres (numpy or Warp vec3 array).
-        radii: (N,) ball radii, model units.
+        radii: (N,) ball radii >= 0, model units (numpy or Warp float32 array).
+
+    Raises:
+        ModelError: a centre or radius is not finite (or a radius negative),
+            naming it and its index.
     """
+    threads = check_threads(threads)
     lm = linearize(model)
-    pts, dev, was_numpy = _as_points(centers, device)
-    rad = radii if isinstance(radii, wp.array) else wp.array(np.asarray(radii, dtype=np.float32), dtype=wp.float32, device=dev)
+    pts, dev, was_numpy = _as_points(centers, device, "centers")
+    rad = _as_radii(radii, dev)
     n = pts.shape[0]
     if rad.shape[0] != n:
-        raise WarpblobError(f"radii: expected {n} values, got {rad.shape[0]}")
+        raise ModelError(f"radii: expected {n} values, got {rad.shape[0]}")
     out = wp.empty(n, dtype=wp.vec2, device=dev)
     if "interval" not in _KERNELS:
         _KERNELS["interval"] = _kernels.make_interval_kernel()
@@ -69,6 +76,9 @@ def bound_blocks(model, origin, cellsize: float, blocks, *, device=None, threads
         cellsize: grid spacing, > 0.
         blocks: (N, 3) integer block coordinates.
 
+    Raises:
+        ModelError: a bad origin, cellsize or block, naming the value.
+
     Example:
         >>> import numpy as np, warpblob as wb
         >>> from warpblob.field import bound_blocks
@@ -76,17 +86,19 @@ def bound_blocks(model, origin, cellsize: float, blocks, *, device=None, threads
         >>> b.shape, bool(b[0, 0, 1] < 0.5 <= b[0, 21, 1])
         ((1, 64, 2), True)
     """
+    threads = check_threads(threads)
     lm = linearize(model)
+    o, h = _grid_frame("bound_blocks", origin, cellsize)
     try:
-        o = np.asarray(origin, dtype=np.float64).reshape(3)
-        h = float(cellsize)
         coords = np.asarray(blocks)
-    except (TypeError, ValueError):
-        raise WarpblobError(f"bound_blocks: bad origin {origin!r} or cellsize {cellsize!r}") from None
-    if not np.all(np.isfinite(o)) or not (np.isfinite(h) and h > 0.0):
-        raise WarpblobError(f"bound_blocks: need a finite origin and cellsize > 0, got {origin!r}, {cellsize!r}")
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"bound_blocks: blocks must be an (N, 3) integer array, got {blocks!r}") from None
     if coords.ndim != 2 or coords.shape[1] != 3 or not np.issubdtype(coords.dtype, np.integer):
-        raise WarpblobError(f"bound_blocks: blocks must be an (N, 3) integer array, got {coords.dtype} {coords.shape}")
+        raise ModelError(f"bound_blocks: blocks must be an (N, 3) integer array, got {coords.dtype} {coords.shape}")
+    if coords.size:
+        # the kernel indexes grid points 8 * (blocks + 1) in int32 and places them in float32
+        for end in (coords.min(axis=0).astype(np.float64) - 1.0, coords.max(axis=0).astype(np.float64) + 1.0):
+            _check_grid_extent("bound_blocks", o, h, _kernels.BLOCK_SIDE * end, "blocks")
     dev = resolve_device(device)
     n = coords.shape[0]
     out = wp.empty(n * _kernels.SUB_BLOCKS, dtype=wp.vec2, device=dev)
@@ -128,27 +140,144 @@ def model_arrays(lm: LinearModel, device) -> _kernels.ModelArrays:
     return s
 
 
-def _as_points(points, device):
-    """(warp vec3 array, device, was_numpy) from numpy-like or Warp input."""
+#: largest finite float32: the kernels see every coordinate in float32
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def _first_bad(values: np.ndarray, lowest: float) -> tuple | None:
+    """Index of the first entry of ``values`` that is NaN, infinite, beyond
+    float32's range or below ``lowest``; None when there is none."""
+    if values.size == 0:
+        return None
+    # two reductions and no temporaries in the common case (NaN fails both comparisons)
+    if values.min() >= lowest and values.max() <= _F32_MAX:
+        return None
+    bad = ~((values >= lowest) & (values <= _F32_MAX))
+    return np.unravel_index(int(np.argmax(bad)), values.shape)
+
+
+def _host_values(values, name: str, what: str) -> np.ndarray:
+    """``values`` as a float32 or float64 numpy array without rounding them to
+    float32 yet, so that a check can report the number the caller passed."""
+    try:
+        arr = np.asarray(values)
+        if arr.dtype != np.float32:
+            arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"{name}: expected {what}, got {_not_a_number(values)}") from None
+    return arr
+
+
+def _not_a_number(values) -> str:
+    """What a caller passed that numpy cannot read as float64: the first such
+    entry and its index when ``values`` is a regular nest of sequences."""
+    try:
+        entries = np.asarray(values, dtype=object)
+    except ValueError:  # ragged
+        return type(values).__name__
+    for index, v in np.ndenumerate(entries):
+        try:
+            float(v)
+        except (TypeError, ValueError, OverflowError):
+            shown = repr(v) if len(repr(v)) <= 40 else repr(v)[:37] + "..."
+            return f"{shown} at index {list(index)}"
+    return type(values).__name__
+
+
+def _fmt(values: np.ndarray) -> str:
+    # numpy scalars print the shortest repr of their own precision (0.1, 1e+39, nan)
+    return "[" + ", ".join(str(v) for v in values) + "]" if values.ndim else str(values)
+
+
+def _check_device_values(arr: wp.array, name: str, label: str, lowest: float, rule: str) -> None:
+    """ModelError naming the first entry of Warp array ``arr`` (vec3 or float32)
+    that is not finite or is below ``lowest``, found on the array's device."""
+    n = arr.shape[0]
+    if n == 0:
+        return
+    first = wp.full(1, n, dtype=wp.int32, device=arr.device)
+    # one launch, not range-split: the CPU pool's concurrent launches would race on the atomic
+    wp.launch(_kernels.find_bad_entry_kernel, dim=n, inputs=[arr, lowest], outputs=[first], device=arr.device)
+    # host sync: the check's one read-back
+    i = int(first.numpy()[0])
+    if i < n:
+        value = arr[i : i + 1].numpy()[0]
+        raise ModelError(f"{name}: {label} {i} is {_fmt(value)}; {rule}")
+
+
+def _as_points(points, device, name: str = "points"):
+    """(warp vec3 array, device, was_numpy) from numpy-like or Warp input, or
+    ModelError naming a coordinate that is not finite (or, for numpy-like
+    input, that float32 cannot hold) and its row."""
     if isinstance(points, wp.array):
         if points.dtype == wp.vec3 and points.ndim == 1:
-            return points, points.device, False
-        if points.dtype == wp.float32 and points.ndim == 2 and points.shape[1] == 3:
-            return points.view(dtype=wp.vec3).reshape((points.shape[0],)), points.device, False
-        raise WarpblobError(f"points: expected a Warp array of vec3 or (N, 3) float32, got {points.dtype} {points.shape}")
-    try:
-        arr = np.asarray(points, dtype=np.float32)
-    except (TypeError, ValueError):
-        raise WarpblobError(f"points: expected an (N, 3) array of numbers, got {type(points).__name__}") from None
+            pts = points
+        elif points.dtype == wp.float32 and points.ndim == 2 and points.shape[1] == 3:
+            pts = points.view(dtype=wp.vec3).reshape((points.shape[0],))
+        else:
+            raise ModelError(
+                f"{name}: expected a Warp array of vec3 or (N, 3) float32, got {points.dtype} {points.shape}"
+            )
+        _check_device_values(pts, name, "row", -np.inf, "coordinates must be finite")
+        return pts, pts.device, False
+    arr = _host_values(points, name, "an (N, 3) array of numbers")
     if arr.ndim == 1 and arr.shape == (3,):
         arr = arr[None]
     if arr.ndim != 2 or arr.shape[1] != 3:
-        raise WarpblobError(f"points: expected shape (N, 3), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        bad = np.argwhere(~np.isfinite(arr))[0]
-        raise WarpblobError(f"points: must be finite, got {arr[bad[0]].tolist()} at row {bad[0]}")
+        raise ModelError(f"{name}: expected shape (N, 3), got {arr.shape}")
+    bad = _first_bad(arr, -_F32_MAX)
+    if bad is not None:
+        raise ModelError(
+            f"{name}: row {bad[0]} is {_fmt(arr[bad[0]])}; coordinates must be finite and within float32's range "
+            "(|x| <= 3.4e38)"
+        )
     device = resolve_device(device)
-    return wp.array(np.ascontiguousarray(arr), dtype=wp.vec3, device=device), device, True
+    return wp.array(np.ascontiguousarray(arr, dtype=np.float32), dtype=wp.vec3, device=device), device, True
+
+
+def _as_radii(radii, device) -> wp.array:
+    """Ball radii as a float32 Warp array on ``device`` (Warp input stays on its
+    own), or ModelError naming one that is negative or not finite."""
+    if isinstance(radii, wp.array):
+        if radii.dtype != wp.float32 or radii.ndim != 1:
+            raise ModelError(f"radii: expected a 1-D Warp float32 array, got {radii.dtype} {radii.shape}")
+        _check_device_values(radii, "radii", "entry", 0.0, "radii must be finite and >= 0")
+        return radii
+    arr = _host_values(radii, "radii", "an (N,) array of numbers")
+    if arr.ndim != 1:
+        raise ModelError(f"radii: expected shape (N,), got {arr.shape}")
+    bad = _first_bad(arr, 0.0)
+    if bad is not None:
+        raise ModelError(
+            f"radii: entry {bad[0]} is {_fmt(arr[bad[0]])}; radii must be finite, >= 0 and within float32's range"
+        )
+    return wp.array(arr.astype(np.float32), dtype=wp.float32, device=device)
+
+
+def _grid_frame(fn: str, origin, cellsize) -> tuple[np.ndarray, float]:
+    """(origin float64 (3,), cellsize) of a grid, or ModelError naming the bad value."""
+    o = _host_values(origin, f"{fn}: origin", "3 numbers")
+    if o.size != 3:
+        raise ModelError(f"{fn}: origin must be 3 numbers, got {origin!r}")
+    o = o.reshape(3).astype(np.float64)
+    if _first_bad(o, -_F32_MAX) is not None:
+        raise ModelError(f"{fn}: origin must be finite and within float32's range, got {_fmt(o)}")
+    try:
+        h = float(cellsize)
+    except (TypeError, ValueError, OverflowError):
+        raise ModelError(f"{fn}: cellsize must be a number > 0, got {cellsize!r}") from None
+    if not (0.0 < h <= _F32_MAX):
+        raise ModelError(f"{fn}: cellsize must be > 0 and within float32's range, got {cellsize!r}")
+    return o, h
+
+
+def _check_grid_extent(fn: str, origin: np.ndarray, h: float, index, what: str) -> None:
+    """ModelError unless grid index ``index`` (3,) fits int32 and its point float32."""
+    index = np.asarray(index, dtype=np.float64)  # no integer wrap-around while checking
+    reach = origin + h * index
+    if np.any(np.abs(index) >= 2**31) or _first_bad(reach, -_F32_MAX) is not None:
+        shown = "[" + ", ".join(f"{v:.0f}" for v in index) + "]"
+        raise ModelError(f"{fn}: {what} reach grid index {shown} at {_fmt(reach)}, beyond int32 or float32's range")
 
 
 def evaluate(model, points, *, device=None, derivatives: bool = True, prune: bool = True, threads: int | None = None):
@@ -168,7 +297,14 @@ def evaluate(model, points, *, device=None, derivatives: bool = True, prune: boo
         ``(values, gradients, colors)``; numpy arrays for numpy input, Warp
         arrays on the input's device for Warp input; gradients and colours
         are ``None`` when ``derivatives`` is False.
+
+    Raises:
+        ModelError: a point has a NaN or infinite coordinate (or, for numpy
+            input, one float32 cannot hold), naming the point and its row;
+            Warp input is checked on its own device with one host sync.
+        WarpblobError: ``threads`` is not a positive integer or None.
     """
+    threads = check_threads(threads)
     lm = linearize(model)
     pts, dev, was_numpy = _as_points(points, device)
     n = pts.shape[0]
@@ -262,10 +398,13 @@ def grid_field(model, origin, cellsize: float, shape, *, device=None, threads: i
     Args:
         origin: (3,) position of grid point (0, 0, 0), model units.
         cellsize: grid spacing, > 0.
-        shape: (nx, ny, nz) points per axis, each >= 1.
+        shape: (nx, ny, nz) points per axis, each an integer >= 1.
 
     Returns:
         float32 array of ``shape``.
+
+    Raises:
+        ModelError: a bad origin, cellsize or shape, naming the value.
 
     Example:
         >>> import warpblob as wb
@@ -274,15 +413,16 @@ def grid_field(model, origin, cellsize: float, shape, *, device=None, threads: i
         >>> float(v[2, 2, 2])
         1.0
     """
+    threads = check_threads(threads)
     lm = linearize(model)
+    o, h = _grid_frame("grid_field", origin, cellsize)
     try:
-        o = np.asarray(origin, dtype=np.float64).reshape(3)
-        dims = tuple(int(n) for n in shape)
-        h = float(cellsize)
-    except (TypeError, ValueError):
-        raise WarpblobError(f"grid_field: bad origin {origin!r}, cellsize {cellsize!r} or shape {shape!r}") from None
-    if len(dims) != 3 or min(dims) < 1 or not np.all(np.isfinite(o)) or not (np.isfinite(h) and h > 0.0):
-        raise WarpblobError(f"grid_field: need a finite origin, cellsize > 0 and 3 sizes >= 1, got {origin!r}, {cellsize!r}, {shape!r}")
+        dims = tuple(operator.index(n) for n in shape)
+    except TypeError:
+        raise ModelError(f"grid_field: shape must be 3 integers >= 1, got {shape!r}") from None
+    if len(dims) != 3 or min(dims) < 1:
+        raise ModelError(f"grid_field: shape must be 3 integers >= 1, got {shape!r}")
+    _check_grid_extent("grid_field", o, h, dims, "shape")
     dev = resolve_device(device)
     blocks = [-(-n // _kernels.BLOCK_SIDE) for n in dims]
     n_blocks = int(np.prod(blocks))

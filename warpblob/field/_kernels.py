@@ -12,6 +12,8 @@ cell. Value, analytic gradient and colour are computed together.
 
 from __future__ import annotations
 
+from typing import Any
+
 import warp as wp
 
 from .._linearize import SLOTS, WARP_NESTING
@@ -35,16 +37,13 @@ K_POLYGON = wp.constant(_kinds.POLYGON)
 K_BOX = wp.constant(_kinds.BOX)
 K_INFLATE = wp.constant(_kinds.INFLATE)
 K_REVOLVE = wp.constant(_kinds.REVOLVE)
-K_SWEEP = wp.constant(_kinds.SWEEP)
 K_PRIM_END = wp.constant(_kinds.PRIMITIVE_KIND_END)
 K_BLEND = wp.constant(_kinds.BLEND)
 K_UNION = wp.constant(_kinds.UNION)
 K_INTERSECTION = wp.constant(_kinds.INTERSECTION)
-K_DIFFERENCE = wp.constant(_kinds.DIFFERENCE)
 K_SMOOTH = wp.constant(_kinds.SMOOTH_BLEND)
 K_TWIST = wp.constant(_kinds.TWIST)
 K_TAPER = wp.constant(_kinds.TAPER)
-K_BEND = wp.constant(_kinds.BEND)
 
 
 @wp.struct
@@ -70,6 +69,35 @@ class ModelArrays:
     grid_base: wp.array(dtype=wp.int32)
     cell_offsets: wp.array(dtype=wp.int32)
     cell_items: wp.array(dtype=wp.int32)
+
+
+# --------------------------------------------------------------------------
+# input checks
+
+
+@wp.func
+def smallest(v: wp.vec3):
+    return wp.min(wp.min(v[0], v[1]), v[2])
+
+
+@wp.func
+def smallest(v: float):  # noqa: F811 (a Warp overload of the vec3 version)
+    return v
+
+
+@wp.kernel(enable_backward=False)
+def find_bad_entry_kernel(values: wp.array(dtype=Any), lowest: float, first: wp.array(dtype=wp.int32)):
+    """``first[0] = min(first[0], i)`` over entries ``values[i]`` (vec3 or
+    float32) that are not finite or have a component below ``lowest``."""
+    i = wp.tid()
+    v = values[i]
+    if not wp.isfinite(v) or smallest(v) < lowest:
+        wp.atomic_min(first, 0, i)
+
+
+# both overloads declared up front: the module then compiles once, whichever input comes first
+wp.overload(find_bad_entry_kernel, {"values": wp.array(dtype=wp.vec3)})
+wp.overload(find_bad_entry_kernel, {"values": wp.array(dtype=wp.float32)})
 
 
 # --------------------------------------------------------------------------
@@ -1019,30 +1047,10 @@ box_rows = make_simple_rows(box_offset)
 cone_rows = make_simple_rows(cone_offset)
 
 
-def make_evaluate(
-    prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, cube: bool = False,
-    _core: bool = False,
-):  # fmt: skip
-    """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
-
-    Point mode (``interval`` False) returns (F, grad F, colour) at ``p``
-    (F alone, the rest 0, when ``derivatives`` is False; F is bit-identical
-    either way); ``radius`` is ignored. Interval mode returns (F_min, F_max, 0...) over the
-    ball of ``radius`` around ``p``: it always prunes (by ball-box overlap),
-    treats a warp whose box meets the ball as unknown ([0, inf)), and visits
-    the operands of a wide operator listed in the grid cells the ball overlaps.
-    With ``cube`` too, ``radius`` is the half side of an axis-aligned cube and
-    the bounds hold over the cube (:func:`interval_primitive`'s cube bound, as
-    the bounds rows of array mode compute them).
-    """
-    use_grid = prune
-    # array mode walks the tree once per block, pruning like interval mode over
-    # the block's cube; warps inside it are evaluated point by point. With
-    # ``interval`` too it bounds F over the block's 64 sub-blocks (bounds rows).
-    spatial = interval or array
-    bounds = interval and array
-    ball = interval and not array
-    point = make_evaluate(True, derivatives=False, _core=True) if array and not interval else None
+def make_walks_grid(spatial: bool):
+    """``walks_grid(m, node, q, radius)``: whether operator ``node`` visits its
+    operands through its grid, in point mode (``spatial`` False) or over a
+    ball or block (``spatial`` True)."""
 
     @wp.func
     def walks_grid(m: ModelArrays, node: int, q: wp.vec3, radius: float):
@@ -1056,7 +1064,12 @@ def make_evaluate(
             return float(ball_cell_count(m, gi, q, radius)) < m.params[node][1]
         return True
 
-    full = derivatives and not interval and not array
+    return walks_grid
+
+
+def make_flat_operator(prune: bool, derivatives: bool):
+    """Point mode's fold of a flat operator (one whose operands are all primitives):
+    ``flat_operator(m, node, q) -> vec7``."""
 
     @wp.func(inline=True)
     def flat_operand(m: ModelArrays, node: int, q: wp.vec3):
@@ -1078,7 +1091,7 @@ def make_evaluate(
         p0 = m.params[node][0]
         acc = vec7()
         gi = m.ref[node]
-        if wp.static(use_grid) and gi >= 0:
+        if wp.static(prune) and gi >= 0:
             # wide: the operands listed in q's grid cell, the accumulator starting at 0
             cells = cell_operands(m, gi, q)
             if cells[0] == cells[1]:
@@ -1096,6 +1109,14 @@ def make_evaluate(
             c = m.skip[c]
         return finalize_kind(kind, p0, acc)
 
+    return flat_operator
+
+
+def make_get_slot(ball: bool, array: bool, full: bool):
+    """``get_slot(sv, sh, sg, sc, sp) -> vec7``: register ``sp`` of a traversal in
+    the layout its mode folds: (F_min, F_max) for a ball, an index range for
+    array mode, (F, grad F, colour) with ``full`` derivatives, else F."""
+
     @wp.func
     def get_slot(sv: vec_slots, sh: vec_slots, sg: mat_slots3, sc: mat_slots3, sp: int):
         if wp.static(ball):
@@ -1109,6 +1130,15 @@ def make_evaluate(
         g = sg[sp]
         c = sc[sp]
         return vec7(sv[sp], g[0], g[1], g[2], c[0], c[1], c[2], 0.0)
+
+    return get_slot
+
+
+def make_rows_leaf(point):
+    """Array mode's leaf: ``rows_leaf(m, node, ctx)`` writes F of primitive or
+    warp ``node`` at the block's points; ``point`` is the point-mode walk
+    (``make_evaluate(..., _core=True)``) that evaluates a warp's subtree at
+    each point."""
 
     @wp.func
     def rows_leaf(m: ModelArrays, node: int, ctx: BlockRows):
@@ -1147,10 +1177,115 @@ def make_evaluate(
                         if leaf:
                             x = apply_inverse(inv, p)
                             v = falloff(primitive_distance(kind, x, prm, m.data, start)[0] / rad)[0]
-                        elif wp.static(array and not interval):
+                        else:
                             v = point(m, p, 0.0, node, ctx)[0]
                         ctx.rows[res + j] = v
         return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
+
+    return rows_leaf
+
+
+def make_leaf(interval: bool, derivatives: bool, array: bool, cube: bool):
+    """The leaf evaluator of one traversal mode, ``leaf(m, node, kind, q, radius,
+    ctx) -> vec7``: for a primitive and, in interval and array modes (which do
+    not descend into warps), for a warp. Bounds rows (``interval`` and
+    ``array``), array-mode rows, interval bounds over the ball (or ``cube``),
+    or the point value with or without ``derivatives``."""
+    if interval and array:
+
+        @wp.func(inline=True)
+        def leaf(m: ModelArrays, node: int, kind: int, q: wp.vec3, radius: float, ctx: BlockRows):
+            return bounds_leaf(m, node, ctx)
+
+    elif array:
+        # a warp's subtree is evaluated point by point with the plain walk
+        rows_leaf = make_rows_leaf(make_evaluate(True, derivatives=False, _core=True))
+
+        @wp.func(inline=True)
+        def leaf(m: ModelArrays, node: int, kind: int, q: wp.vec3, radius: float, ctx: BlockRows):
+            return rows_leaf(m, node, ctx)
+
+    elif interval:
+
+        @wp.func(inline=True)
+        def leaf(m: ModelArrays, node: int, kind: int, q: wp.vec3, radius: float, ctx: BlockRows):
+            if kind >= K_TWIST:
+                return vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            if wp.static(cube):
+                return interval_primitive(m, node, q, radius * 1.7320509, radius)
+            else:
+                return interval_primitive(m, node, q, radius, 0.0)
+
+    else:
+
+        @wp.func(inline=True)
+        def leaf(m: ModelArrays, node: int, kind: int, q: wp.vec3, radius: float, ctx: BlockRows):
+            if wp.static(derivatives):
+                return evaluate_primitive(m, node, q)
+            else:
+                return primitive_value(m, node, q)
+
+    return leaf
+
+
+def make_fold(interval: bool, array: bool):
+    """The operator fold of one traversal mode, ``(fold, finish)``:
+    ``fold(kind, p0, acc, r, first, ctx, sp)`` takes operand result ``r`` into
+    accumulator ``acc`` (register ``sp``) and ``finish(kind, p0, acc, ctx,
+    sp)`` closes the operator, with the formulas of bounds rows, array rows,
+    interval or point mode."""
+    if interval and array:
+        return fold_bounds, finalize_bounds
+    if array:
+        return fold_rows, finalize_rows
+    combine, finalize = (combine_interval, finalize_interval) if interval else (combine_kind, finalize_kind)
+
+    # interval and point mode keep their registers in the walk, not in block rows
+
+    @wp.func(inline=True)
+    def fold(kind: int, p0: float, acc: vec7, r: vec7, first: bool, ctx: BlockRows, sp: int):
+        return combine(kind, p0, acc, r, first)
+
+    @wp.func(inline=True)
+    def finish(kind: int, p0: float, acc: vec7, ctx: BlockRows, sp: int):
+        return finalize(kind, p0, acc)
+
+    return fold, finish
+
+
+def make_evaluate(
+    prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, cube: bool = False,
+    _core: bool = False,
+):  # fmt: skip
+    """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
+
+    Point mode (``interval`` False) returns (F, grad F, colour) at ``p``
+    (F alone, the rest 0, when ``derivatives`` is False; F is bit-identical
+    either way); ``radius`` is ignored. Interval mode returns (F_min, F_max, 0...) over the
+    ball of ``radius`` around ``p``: it always prunes (by ball-box overlap),
+    treats a warp whose box meets the ball as unknown ([0, inf)), and visits
+    the operands of a wide operator listed in the grid cells the ball overlaps.
+    With ``cube`` too, ``radius`` is the half side of an axis-aligned cube and
+    the bounds hold over the cube (:func:`interval_primitive`'s cube bound, as
+    the bounds rows of array mode compute them).
+
+    The walk below is one generated body; what differs between the modes
+    lives in the pieces it calls: :func:`make_leaf`, :func:`make_fold`,
+    :func:`make_get_slot`, :func:`make_walks_grid`, :func:`make_flat_operator`.
+    """
+    use_grid = prune
+    # array mode walks the tree once per block, pruning like interval mode over
+    # the block's cube; warps inside it are evaluated point by point. With
+    # ``interval`` too it bounds F over the block's 64 sub-blocks (bounds rows).
+    spatial = interval or array
+    bounds = interval and array
+    ball = interval and not array
+    full = derivatives and not interval and not array
+    leaf = make_leaf(interval, derivatives, array, cube)
+    fold, finish = make_fold(interval, array)
+    get_slot = make_get_slot(ball, array, full)
+    walks_grid = make_walks_grid(spatial)
+    flat_operator = make_flat_operator(prune, derivatives)
 
     @wp.func(inline=True)
     def traverse(m: ModelArrays, p: wp.vec3, radius: float, root: int, ctx: BlockRows):
@@ -1181,29 +1316,12 @@ def make_evaluate(
                         r = empty_range(ctx.result)
                     descending = False
                 elif kind < K_PRIM_END:
-                    if wp.static(bounds):
-                        r = bounds_leaf(m, i, ctx)
-                    elif wp.static(interval):
-                        if wp.static(cube):
-                            r = interval_primitive(m, i, q, radius * 1.7320509, radius)
-                        else:
-                            r = interval_primitive(m, i, q, radius, 0.0)
-                    elif wp.static(array):
-                        r = rows_leaf(m, i, ctx)
-                    elif wp.static(derivatives):
-                        r = evaluate_primitive(m, i, q)
-                    else:
-                        r = primitive_value(m, i, q)
+                    r = leaf(m, i, kind, q, radius, ctx)
                     descending = False
                 elif kind >= K_TWIST:
-                    if wp.static(bounds):
-                        r = bounds_leaf(m, i, ctx)
-                        descending = False
-                    elif wp.static(interval):
-                        r = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-                        descending = False
-                    elif wp.static(array):
-                        r = rows_leaf(m, i, ctx)
+                    if wp.static(spatial):
+                        # interval and array modes take a warp's subtree as one leaf
+                        r = leaf(m, i, kind, q, radius, ctx)
                         descending = False
                     else:
                         wsp += 1
@@ -1271,15 +1389,7 @@ def make_evaluate(
                     first = i == par + 1 and not wide
                     if first:
                         sp += 1
-                    acc = vec7()
-                    if wp.static(bounds):
-                        acc = fold_bounds(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
-                    elif wp.static(interval):
-                        acc = combine_interval(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
-                    elif wp.static(array):
-                        acc = fold_rows(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
-                    else:
-                        acc = combine_kind(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first)
+                    acc = fold(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
                     sv[sp] = acc[0]
                     if wp.static(ball):
                         sh[sp] = acc[1]
@@ -1318,14 +1428,7 @@ def make_evaluate(
                         i = nxt
                         descending = True
                     else:
-                        if wp.static(bounds):
-                            r = finalize_bounds(pk, prm[0], acc, ctx, sp)
-                        elif wp.static(interval):
-                            r = finalize_interval(pk, prm[0], acc)
-                        elif wp.static(array):
-                            r = finalize_rows(pk, prm[0], acc, ctx, sp)
-                        else:
-                            r = finalize_kind(pk, prm[0], acc)
+                        r = finish(pk, prm[0], acc, ctx, sp)
                         sp -= 1
                         i = par
         return r
