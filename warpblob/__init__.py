@@ -24,6 +24,8 @@ from .field import color, evaluate, field, gradient
 from . import mesh
 from .mesh import SurfaceMesh, TetMesh, TetQuality, TetStructure, quality
 from .polygonize import polygonize
+from . import sim
+from .sim import Simulation
 from .tetrahedralize import tetrahedralize
 from . import tools
 from .tree import (
@@ -114,6 +116,8 @@ __all__ = [
     "mesh",
     "thread_count",
     "set_thread_count",
+    "sim",
+    "Simulation",
     "scenes",
     "tools",
 ]

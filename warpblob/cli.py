@@ -387,6 +387,9 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--points", required=True, help="(N, 3) float .npy file")
     f.add_argument("--out", default=None, help="output .npy (default: POINTS_field.npy)")
     f.set_defaults(func=cmd_field)
+    from .sim._command import add_simulate_parser
+
+    add_simulate_parser(sub)
     return p
 
 

@@ -1,6 +1,7 @@
 """Mesh types: triangle surfaces, tetrahedral meshes, their quality, and the
 edge-based tetrahedral structure that simulation and cutting edit."""
 
+from ._grid import box_tetmesh
 from ._quality import TetQuality, format_quality, quality
 from ._structure import (
     CellView,
@@ -19,6 +20,7 @@ from ._tetmesh import TET_EDGES, TET_FACES, TetMesh
 __all__ = [
     "SurfaceMesh",
     "TetMesh",
+    "box_tetmesh",
     "TET_FACES",
     "TET_EDGES",
     "TetQuality",

@@ -1,0 +1,287 @@
+"""Element data of the co-rotational FEM in flat arrays, rebuildable for any subset of tets.
+
+Per tet: node indices, a live flag, ``Dm^-1`` (rest shape matrix inverse),
+rest volume, Lamé parameters and density; per node: the lumped mass and the
+CSR node -> corner incidence (corner ``4 t + a`` is local node ``a`` of tet
+``t``) through which every per-node kernel gathers per-corner results in a
+fixed order. The host copies of topology and materials are the source of
+truth; :meth:`Elements.rebuild` is the call a topology change makes (cutting
+splits, adds and kills tets): it recomputes the geometry of the given tets
+with a kernel, then the masses and the incidence of all nodes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .._errors import SimulationError
+from .._parallel import launch
+from ..mesh._structure import _csr
+from . import _kernels as k
+
+__all__ = ["Elements", "material_values", "lame"]
+
+#: a tet whose rest volume is below this fraction of its longest edge cubed is degenerate
+DEGENERATE_VOLUME = 1e-7
+
+
+def material_values(
+    name: str, value, material: np.ndarray, *, positive: bool = False, bounds=None, tet_ids=None
+) -> np.ndarray:
+    """Per-tet float64 values of a material parameter given as a scalar, a (T,) array or a dict by material id.
+
+    ``tet_ids`` (default ``arange(T)``) are the tet numbers the messages name.
+
+    Raises:
+        SimulationError: a wrong shape, a missing material id, a value that
+            is not finite, not positive (``positive``) or outside the open
+            interval ``bounds``, naming the value and its tet.
+    """
+    count = len(material)
+    if isinstance(value, dict):
+        ids = np.unique(material)
+        missing = [int(m) for m in ids if int(m) not in value]
+        if missing:
+            raise SimulationError(
+                f"{name}: no value for material {missing[0]} (the mesh has materials {ids.tolist()}, "
+                f"the dict gives {sorted(value)})"
+            )
+        table = {int(m): value[int(m)] for m in ids}
+        for m, v in table.items():
+            if not isinstance(v, (int, float, np.integer, np.floating)) or isinstance(v, bool):
+                raise SimulationError(f"{name}[material {m}] must be a number, got {v!r}")
+        out = np.zeros(count, dtype=np.float64)
+        for m, v in table.items():
+            out[material == m] = float(v)
+    else:
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SimulationError(
+                f"{name} must be a number, a ({count},) array or a dict by material id, got {value!r}"
+            ) from None
+        if arr.ndim == 0:
+            out = np.full(count, float(arr))
+        elif arr.shape == (count,):
+            out = arr.copy()
+        else:
+            raise SimulationError(
+                f"{name} must be a number, a ({count},) array or a dict by material id, got shape {arr.shape}"
+            )
+    tet = (lambda j: int(j)) if tet_ids is None else (lambda j: int(tet_ids[j]))  # noqa: E731
+    bad = np.flatnonzero(~np.isfinite(out))
+    if bad.size:
+        raise SimulationError(f"{name} = {out[bad[0]]} at tet {tet(bad[0])} is not finite")
+    if positive:
+        bad = np.flatnonzero(out <= 0)
+        if bad.size:
+            raise SimulationError(f"{name} = {out[bad[0]]} at tet {tet(bad[0])} must be positive")
+    if bounds is not None:
+        lo, hi = bounds
+        bad = np.flatnonzero((out <= lo) | (out >= hi))
+        if bad.size:
+            raise SimulationError(f"{name} = {out[bad[0]]} at tet {tet(bad[0])} must lie in ({lo}, {hi})")
+    return out
+
+
+def lame(young: np.ndarray, poisson: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lamé parameters ``(mu, lambda)`` from Young's modulus and Poisson's ratio."""
+    mu = young / (2.0 * (1.0 + poisson))
+    lam = young * poisson / ((1.0 + poisson) * (1.0 - 2.0 * poisson))
+    return mu, lam
+
+
+def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.ndarray) -> None:
+    """SimulationError for a live tet among ``ids`` that names a bad node or is inverted or flat at rest."""
+    N = len(rest)
+    sub = tets[ids]
+    live = alive[ids]
+    out = np.flatnonzero(live & ((sub < 0) | (sub >= N)).any(axis=1))
+    if out.size:
+        t = int(ids[out[0]])
+        raise SimulationError(f"tet {t} = {tets[t].tolist()} names a node outside [0, {N})")
+    s = np.sort(sub, axis=1)
+    twice = np.flatnonzero(live & (s[:, 1:] == s[:, :-1]).any(axis=1))
+    if twice.size:
+        t = int(ids[twice[0]])
+        raise SimulationError(f"tet {t} = {tets[t].tolist()} repeats a node")
+    p = rest.astype(np.float64)[np.where(live[:, None], sub, 0)]
+    e = p[:, [1, 2, 3]] - p[:, [0]]
+    volume = np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
+    edges = np.concatenate([e, p[:, [2, 3, 3]] - p[:, [1, 1, 2]]], axis=1)
+    longest = np.sqrt((edges**2).sum(axis=2).max(axis=1))
+    bad = np.flatnonzero(live & (volume <= DEGENERATE_VOLUME * longest**3))
+    if bad.size:
+        j = bad[0]
+        t = int(ids[j])
+        kind = "inverted" if volume[j] < 0 else "zero-volume"
+        raise SimulationError(
+            f"tet {t} = {tets[t].tolist()} is {kind} at rest: volume {volume[j]:.6g} "
+            f"(longest edge {longest[j]:.6g}); rest tets must be positively oriented"
+        )
+
+
+class Elements:
+    """Element data on one device: tets, ``Dm^-1``, rest volumes, Lamé parameters, densities, masses, incidence.
+
+    Args:
+        rest: (N, 3) rest positions.
+        tets: (T, 4) node indices, positive orientation at rest.
+        alive: (T,) bool; dead tets keep their slot and contribute nothing.
+        young, poisson, density: (T,) float64 per-tet values (validated by
+            :func:`material_values`).
+        device: Warp device.
+        threads: CPU threads of the launches (None: the default).
+
+    Attributes (Warp arrays): ``tets`` (T,) vec4i, ``dm_inv`` (T,) mat33,
+    ``volume`` (T,) rest volume (0 for dead tets), ``mu``, ``lam``,
+    ``density`` (T,), ``mass`` (N,) lumped mass, ``node_offsets`` (N + 1,)
+    and ``node_corners`` the CSR incidence.
+    """
+
+    def __init__(self, rest, tets, alive, young, poisson, density, *, device, threads=None):
+        self.device = device
+        self.threads = threads
+        self.rest_host = np.ascontiguousarray(rest, dtype=np.float32)
+        self.tets_host = np.ascontiguousarray(tets, dtype=np.int32).reshape(-1, 4)
+        self.alive_host = np.ascontiguousarray(alive, dtype=bool)
+        self.young_host = np.asarray(young, dtype=np.float64)
+        self.poisson_host = np.asarray(poisson, dtype=np.float64)
+        self.density_host = np.asarray(density, dtype=np.float64)
+        self.dm_inv = wp.zeros(0, dtype=wp.mat33, device=device)
+        self.volume = wp.zeros(0, dtype=float, device=device)
+        ids = np.arange(self.tet_count, dtype=np.int32)
+        check_tets(self.rest_host, self.tets_host, self.alive_host, ids)
+        self._rebuild(ids)
+
+    @property
+    def tet_count(self) -> int:
+        return int(self.tets_host.shape[0])
+
+    @property
+    def node_count(self) -> int:
+        return int(self.rest_host.shape[0])
+
+    def rebuild(
+        self, tet_ids=None, *, tets=None, alive=None, rest=None, young=None, poisson=None, density=None
+    ) -> None:
+        """Recompute the element data of tets ``tet_ids`` after a topology change (all tets when None).
+
+        The cutting issue calls this after every edit: pass the changed slots,
+        their new node indices, live flags and materials; ids at or past
+        :attr:`tet_count` (consecutive from it) append tets, and a longer
+        ``rest`` appends nodes. ``Dm^-1`` and volumes of ``tet_ids`` are
+        recomputed by a kernel, the masses and the incidence of every node by
+        a sort and a gather (both cheap next to a step).
+
+        Args:
+            tet_ids: (K,) tet slots to rebuild, or None for all.
+            tets: (K, 4) new node indices of those slots (default: unchanged).
+            alive: (K,) live flags (default: unchanged; True for new slots).
+            rest: (N', 3) rest positions of every node, N' >= N (default: unchanged).
+            young, poisson, density: (K,) values for those slots (default:
+                unchanged; new slots must give them).
+
+        Raises:
+            SimulationError: bad ids, shapes or values, or a live tet that
+                names a bad node or is inverted or flat at rest.
+        """
+        T = self.tet_count
+        if tet_ids is None:
+            ids = np.arange(T, dtype=np.int64)
+        else:
+            ids = np.asarray(tet_ids)
+            if ids.ndim != 1 or (ids.size and not np.issubdtype(ids.dtype, np.integer)):
+                raise SimulationError(f"rebuild: tet_ids must be a 1-D integer array, got {tet_ids!r}")
+            ids = ids.astype(np.int64)
+        new = np.unique(ids[ids >= T])
+        if ids.size and ids.min() < 0:
+            raise SimulationError(f"rebuild: tet id {int(ids.min())} is negative")
+        if new.size and not np.array_equal(new, np.arange(T, T + new.size)):
+            raise SimulationError(f"rebuild: new tet ids must continue from {T} without gaps, got {new.tolist()}")
+        grown = T + new.size
+
+        def values(name, arr, width, dtype, fill):
+            if arr is None:
+                if new.size and fill is None:
+                    raise SimulationError(f"rebuild: {name} must be given for the new tets {new.tolist()}")
+                return None
+            a = np.asarray(arr, dtype=dtype)
+            shape = (len(ids),) if width is None else (len(ids), width)
+            if a.shape != shape:
+                raise SimulationError(f"rebuild: {name} must have shape {shape}, got {a.shape}")
+            return a
+
+        tets = values("tets", tets, 4, np.int64, None)
+        alive = values("alive", alive, None, bool, True)
+        params = {n: values(n, v, None, np.float64, None) for n, v in
+                  (("young", young), ("poisson", poisson), ("density", density))}  # fmt: skip
+        if rest is not None:
+            r = np.asarray(rest, dtype=np.float64)
+            if r.ndim != 2 or r.shape[1] != 3 or len(r) < self.node_count:
+                raise SimulationError(
+                    f"rebuild: rest must have shape (N', 3) with N' >= {self.node_count}, got {r.shape}"
+                )
+            bad = np.flatnonzero(~np.isfinite(r).all(axis=1))
+            if bad.size:
+                raise SimulationError(f"rebuild: rest[{bad[0]}] = {r[bad[0]].tolist()} is not finite")
+
+        def grow(a, fill):
+            return np.concatenate([a, np.full((grown - T, *a.shape[1:]), fill, dtype=a.dtype)])
+
+        tets_h, alive_h = grow(self.tets_host, 0), grow(self.alive_host, True)
+        if tets is not None:
+            tets_h[ids] = tets
+        if alive is not None:
+            alive_h[ids] = alive
+        mats = {}
+        for name, host, bounds, positive in (("young", self.young_host, None, True),
+                                             ("poisson", self.poisson_host, (-1.0, 0.5), False),
+                                             ("density", self.density_host, None, True)):  # fmt: skip
+            h = grow(host, np.nan)
+            if params[name] is not None:
+                h[ids] = params[name]
+            sub = material_values(name, h[ids], np.zeros(len(ids), dtype=np.int32), positive=positive, bounds=bounds,
+                                  tet_ids=ids)
+            h[ids] = sub
+            mats[name] = h
+        rest_h = self.rest_host if rest is None else np.ascontiguousarray(rest, dtype=np.float32)
+        check_tets(rest_h, tets_h, alive_h, ids)
+        self.rest_host, self.tets_host, self.alive_host = rest_h, tets_h, alive_h
+        self.young_host, self.poisson_host, self.density_host = mats["young"], mats["poisson"], mats["density"]
+        self._rebuild(ids.astype(np.int32))
+
+    def _rebuild(self, ids: np.ndarray) -> None:
+        dev, T, N = self.device, self.tet_count, self.node_count
+        self.rest = wp.array(self.rest_host, dtype=wp.vec3, device=dev)
+        self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev)
+        alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
+        mu, lam = lame(self.young_host, self.poisson_host)
+        self.mu = wp.array(mu.astype(np.float32), dtype=float, device=dev)
+        self.lam = wp.array(lam.astype(np.float32), dtype=float, device=dev)
+        self.density = wp.array(self.density_host.astype(np.float32), dtype=float, device=dev)
+        dm_inv = wp.zeros(T, dtype=wp.mat33, device=dev)
+        volume = wp.zeros(T, dtype=float, device=dev)
+        keep = min(T, self.dm_inv.shape[0])
+        if keep:
+            wp.copy(dm_inv, self.dm_inv, count=keep)
+            wp.copy(volume, self.volume, count=keep)
+        self.dm_inv, self.volume = dm_inv, volume
+        if ids.size:
+            ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
+            launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
+                   [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
+        # corners of dead tets sort past the last node, out of every row
+        rows = np.where(self.alive_host[:, None], self.tets_host, N).astype(np.int32).ravel()
+        count = 4 * T
+        rows_wp = wp.zeros(2 * count, dtype=wp.int32, device=dev)
+        cols_wp = wp.zeros(2 * count, dtype=wp.int32, device=dev)
+        rows_wp.assign(np.concatenate([rows, np.zeros(count, dtype=np.int32)]))
+        cols_wp.assign(np.concatenate([np.arange(count, dtype=np.int32), np.zeros(count, dtype=np.int32)]))
+        offsets, corners = _csr(rows_wp, cols_wp, count, N, dev, self.threads)
+        self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
+        self.node_corners = wp.array(corners, dtype=wp.int32, device=dev)
+        self.mass = wp.zeros(N, dtype=float, device=dev)
+        launch(k.gather_masses_kernel, N, [self.node_offsets, self.node_corners, self.volume, self.density],
+               [self.mass], dev, self.threads)  # fmt: skip

@@ -1,0 +1,728 @@
+"""Warp kernels of the co-rotational finite element method (Müller & Gross 2004).
+
+Per tet ``t`` with rest shape matrix ``Dm = [X1 - X0, X2 - X0, X3 - X0]``, the
+gradients of the barycentric coordinates are the rows of ``Dm^-1``
+(``g0 = -(g1 + g2 + g3)``). For a current shape matrix ``Ds`` the deformation
+gradient is ``F = Ds Dm^-1`` and its rotation ``R`` comes from the polar
+decomposition ``F = R S`` (:func:`polar_rotation`). The linear-elastic
+stiffness is never stored as a 12x12 matrix: ``K u`` is applied in the
+B-matrix form ``V B^T D B u`` (Müller & Gross 2004, section 3), that is
+
+    grad u = Ds(u) Dm^-1,  eps = sym(grad u),  sigma = 2 mu eps + lambda tr(eps) I,
+    (K u)_a = V sigma g_a,
+
+from ``Dm^-1`` (9 floats), the volume and the Lamé parameters, which is
+fewer bytes per tet than ``K`` and less arithmetic. The element force is
+``f = -R K (R^T x - X)``, whose strain is ``sym(R^T F) - I``; it is exactly
+minus the gradient of the co-rotated energy
+``V (mu |S - I|^2 + lambda / 2 tr(S - I)^2)`` (McAdams et al. 2011). The
+product with the lagged stiffness ``K' = R K R^T`` is formed in the world
+frame from the rotated gradients ``Dm^-1 R^T`` that the element pass stores
+(:func:`multiply_elements_kernel`).
+
+Scattering per-corner results to nodes with atomics would sum in a racy
+order on the CPU's concurrent launches, so every per-tet kernel writes its
+four corners to a ``(4 T,)`` array and a per-node kernel gathers them through
+the CSR node -> corner incidence in a fixed order: results are bit-identical
+for any thread count.
+
+Every kernel takes an ``offset`` right after its inputs and adds it to
+``wp.tid()`` (:func:`warpblob._parallel.launch`).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+#: node flags: a free node, a Dirichlet node, a node no live tet uses (no mass: it stays put)
+FREE = 0
+FIXED = 1
+INACTIVE = 2
+
+_FREE = wp.constant(wp.uint8(FREE))
+
+
+@wp.func
+def shape_matrix(x: wp.array(dtype=wp.vec3), tet: wp.vec4i) -> wp.mat33:
+    """``[x1 - x0, x2 - x0, x3 - x0]`` as columns."""
+    p0 = x[tet[0]]
+    return wp.matrix_from_cols(x[tet[1]] - p0, x[tet[2]] - p0, x[tet[3]] - p0)
+
+
+@wp.func
+def polar_rotation(F: wp.mat33) -> wp.mat33:
+    """The rotation ``R`` of ``F = R S``, a proper rotation even for inverted or flat ``F``.
+
+    ``F = U diag(s) V^T`` by ``wp.svd3``; ``R = U V^T``, and when that is a
+    reflection (``det < 0``: an inverted tet) the column of ``U`` of the
+    smallest singular value is negated, which gives the rotation closest to
+    ``F`` (Irving et al. 2004). A flat or collapsed ``F`` has a zero singular
+    value whose direction ``svd3`` still completes to an orthonormal frame.
+    """
+    U = wp.mat33()
+    s = wp.vec3()
+    V = wp.mat33()
+    wp.svd3(F, U, s, V)
+    R = U * wp.transpose(V)
+    if wp.determinant(R) < 0.0:
+        k = int(0)
+        if wp.abs(s[1]) < wp.abs(s[k]):
+            k = 1
+        if wp.abs(s[2]) < wp.abs(s[k]):
+            k = 2
+        d = wp.vec3(1.0, 1.0, 1.0)
+        d[k] = -1.0
+        R = U * wp.diag(d) * wp.transpose(V)
+    return R
+
+
+@wp.func
+def linear_stress(G: wp.mat33, mu: float, lam: float) -> wp.mat33:
+    """Cauchy stress of the small strain ``sym(G)``: ``2 mu eps + lambda tr(eps) I``."""
+    eps = 0.5 * (G + wp.transpose(G))
+    return 2.0 * mu * eps + lam * wp.trace(eps) * wp.identity(n=3, dtype=float)
+
+
+@wp.kernel(enable_backward=False)
+def prepare_elements_kernel(
+    rest: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    alive: wp.array(dtype=wp.uint8),
+    ids: wp.array(dtype=wp.int32),
+    offset: int,
+    dm_inv: wp.array(dtype=wp.mat33),
+    volume: wp.array(dtype=float),
+):
+    """``Dm^-1`` and the rest volume of tets ``ids`` (dead tets: zero, so they contribute nothing)."""
+    t = ids[wp.tid() + offset]
+    Dm = shape_matrix(rest, tets[t])
+    det = wp.determinant(Dm)
+    if alive[t] == wp.uint8(0) or det <= 0.0:
+        dm_inv[t] = wp.mat33()
+        volume[t] = 0.0
+    else:
+        dm_inv[t] = wp.inverse(Dm)
+        volume[t] = det / 6.0
+
+
+@wp.kernel(enable_backward=False)
+def rotate_elements_kernel(
+    x: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    dm_inv: wp.array(dtype=wp.mat33),
+    volume: wp.array(dtype=float),
+    mu: wp.array(dtype=float),
+    lam: wp.array(dtype=float),
+    offset: int,
+    rotated: wp.array(dtype=wp.mat33),
+    corner_force: wp.array(dtype=wp.vec3),
+    corner_block: wp.array(dtype=wp.vec4),
+    energy: wp.array(dtype=float),
+    current_volume: wp.array(dtype=float),
+):
+    """The one element pass of a step at positions ``x``.
+
+    Per tet: the rotated gradients ``Dm^-1 R^T`` (rows ``R g_a``, which is all
+    the product with ``K'`` needs of ``R``: :func:`multiply_elements_kernel`),
+    the elastic energy, the current signed volume; per corner ``a``: the force
+    ``f_a = -R K (R^T x - X)`` and the diagonal block of ``K'`` as ``(q, c)``
+    with ``K'_aa = c I + q q^T`` (``c = V mu |g_a|^2``,
+    ``q = sqrt(V (mu + lambda)) R g_a``).
+    """
+    t = wp.tid() + offset
+    V = volume[t]
+    if V == 0.0:
+        rotated[t] = wp.mat33()
+        energy[t] = 0.0
+        current_volume[t] = 0.0
+        for a in range(4):
+            corner_force[4 * t + a] = wp.vec3()
+            corner_block[4 * t + a] = wp.vec4()
+        return
+    B = dm_inv[t]
+    F = shape_matrix(x, tets[t]) * B
+    R = polar_rotation(F)
+    G = wp.transpose(R) * F - wp.identity(n=3, dtype=float)
+    m = mu[t]
+    l = lam[t]
+    eps = 0.5 * (G + wp.transpose(G))
+    tr = wp.trace(eps)
+    energy[t] = V * (m * wp.ddot(eps, eps) + 0.5 * l * tr * tr)
+    current_volume[t] = V * wp.determinant(F)
+    rotated[t] = B * wp.transpose(R)
+    H = -V * R * linear_stress(G, m, l) * wp.transpose(B)
+    f1 = wp.vec3(H[0, 0], H[1, 0], H[2, 0])
+    f2 = wp.vec3(H[0, 1], H[1, 1], H[2, 1])
+    f3 = wp.vec3(H[0, 2], H[1, 2], H[2, 2])
+    corner_force[4 * t + 0] = -(f1 + f2 + f3)
+    corner_force[4 * t + 1] = f1
+    corner_force[4 * t + 2] = f2
+    corner_force[4 * t + 3] = f3
+    s = wp.sqrt(V * (m + l))
+    for a in range(1, 4):
+        g = wp.vec3(B[a - 1, 0], B[a - 1, 1], B[a - 1, 2])
+        q = s * (R * g)
+        corner_block[4 * t + a] = wp.vec4(q[0], q[1], q[2], V * m * wp.dot(g, g))
+    g0 = -wp.vec3(B[0, 0] + B[1, 0] + B[2, 0], B[0, 1] + B[1, 1] + B[2, 1], B[0, 2] + B[1, 2] + B[2, 2])
+    q0 = s * (R * g0)
+    corner_block[4 * t] = wp.vec4(q0[0], q0[1], q0[2], V * m * wp.dot(g0, g0))
+
+
+@wp.kernel(enable_backward=False)
+def gather_elements_kernel(
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_force: wp.array(dtype=wp.vec3),
+    corner_block: wp.array(dtype=wp.vec4),
+    offset: int,
+    node_force: wp.array(dtype=wp.vec3),
+    node_block: wp.array(dtype=wp.mat33),
+):
+    """Per node, in incidence order: the elastic force and the diagonal block of ``K'``."""
+    i = wp.tid() + offset
+    f = wp.vec3()
+    D = wp.mat33()
+    for k in range(node_offsets[i], node_offsets[i + 1]):
+        c = node_corners[k]
+        f += corner_force[c]
+        b = corner_block[c]
+        q = wp.vec3(b[0], b[1], b[2])
+        D += wp.outer(q, q) + b[3] * wp.identity(n=3, dtype=float)
+    node_force[i] = f
+    node_block[i] = D
+
+
+@wp.kernel(enable_backward=False)
+def gather_masses_kernel(
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    volume: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+    offset: int,
+    mass: wp.array(dtype=float),
+):
+    """Lumped mass: a quarter of each incident tet's ``density * volume``, in incidence order."""
+    i = wp.tid() + offset
+    m = float(0.0)
+    for k in range(node_offsets[i], node_offsets[i + 1]):
+        t = node_corners[k] // 4
+        m += 0.25 * density[t] * volume[t]
+    mass[i] = m
+
+
+@wp.kernel(enable_backward=False)
+def assemble_system_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.uint8),
+    target: wp.array(dtype=wp.vec3),
+    node_force: wp.array(dtype=wp.vec3),
+    node_block: wp.array(dtype=wp.mat33),
+    external: wp.array(dtype=wp.vec3),
+    gravity: wp.vec3,
+    h: float,
+    c_mass: float,
+    c_stiff: float,
+    ground: int,
+    height: float,
+    friction: float,
+    offset: int,
+    rhs: wp.array(dtype=wp.vec3),
+    guess: wp.array(dtype=wp.vec3),
+    prescribed: wp.array(dtype=wp.vec3),
+    axes: wp.array(dtype=wp.vec3),
+    inverse_block: wp.array(dtype=wp.mat33),
+):
+    """The filtered system of a step, per node: free axes, prescribed velocities, right-hand side, warm start
+    and block-Jacobi inverse.
+
+    A free node has ``b = M v + h (f + M g + f_ext)``. A fixed node has no free
+    axis and the velocity ``(target - x) / h`` that lands it on its target.
+    Ground contact, with the node's own predicted velocity
+    ``v* = v + h (f + M g + f_ext) / m``: a node whose predicted position is
+    below the plane is in contact; its z velocity is constrained to
+    ``v_c = (height - z) / h``, which puts it on the plane, and the ground
+    thereby removes ``dv_n = v_c - v*_z`` of normal velocity. Coulomb
+    friction: when the predicted tangential speed is at most
+    ``friction * dv_n`` the node sticks (all axes constrained, tangential
+    velocity 0), else it slides with the friction impulse
+    ``-friction * m * dv_n`` along its predicted tangential direction added
+    to ``b``. Contacts and friction thus act inside the implicit solve.
+
+    The filtered system is ``S A S + I - S`` with ``S = diag(axes)``; its
+    right-hand side gets ``S b + (I - S) v_p`` here and ``- S A v_p`` from
+    :func:`gather_products_kernel`.
+    """
+    i = wp.tid() + offset
+    flag = flags[i]
+    one = wp.identity(n=3, dtype=float)
+    if flag != _FREE:
+        vp = wp.vec3()
+        if flag == wp.uint8(FIXED):
+            vp = (target[i] - x[i]) / h
+        rhs[i] = vp
+        guess[i] = vp
+        prescribed[i] = vp
+        axes[i] = wp.vec3()
+        inverse_block[i] = one
+        return
+    m = mass[i]
+    force = node_force[i] + m * gravity + external[i]
+    b = m * v[i] + h * force
+    s = wp.vec3(1.0, 1.0, 1.0)
+    vp = wp.vec3()
+    if ground != 0:
+        predicted = v[i] + (h / m) * force
+        if x[i][2] + h * predicted[2] < height:
+            vc = (height - x[i][2]) / h
+            dvn = vc - predicted[2]
+            vp = wp.vec3(0.0, 0.0, vc)
+            tangent = wp.vec3(predicted[0], predicted[1], 0.0)
+            speed = wp.length(tangent)
+            if speed <= friction * dvn:
+                s = wp.vec3()
+            else:
+                s = wp.vec3(1.0, 1.0, 0.0)
+                b = b - (friction * m * dvn / speed) * tangent
+    S = wp.diag(s)
+    rhs[i] = wp.cw_mul(s, b) + vp
+    guess[i] = wp.cw_mul(s, v[i]) + vp
+    prescribed[i] = vp
+    axes[i] = s
+    constrained = wp.diag(wp.vec3(1.0, 1.0, 1.0) - s)
+    inverse_block[i] = wp.inverse(S * (c_mass * m * one + c_stiff * node_block[i]) * S + constrained)
+
+
+@wp.kernel(enable_backward=False)
+def multiply_elements_kernel(
+    p: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    volume: wp.array(dtype=float),
+    mu: wp.array(dtype=float),
+    lam: wp.array(dtype=float),
+    rotated: wp.array(dtype=wp.mat33),
+    axes: wp.array(dtype=wp.vec3),
+    offset: int,
+    corner_out: wp.array(dtype=wp.vec3),
+):
+    """Per corner ``(R K R^T S p)_a``, ``S = diag(axes)`` masking the constrained axes of the input.
+
+    In the world frame: with ``M = Dm^-1 R^T`` (rows ``n_a = R g_a``), the
+    rotated gradient is ``R (R^T Ds Dm^-1) R^T = Ds M``, its stress
+    ``s = 2 mu sym(Ds M) + lambda tr(Ds M) I`` is ``R sigma R^T``, and
+    ``(K' p)_a = V R sigma g_a = V s n_a``: the columns of ``V s M^T``. Half
+    the arithmetic of rotating in and out, and one matrix read instead of two.
+    """
+    t = wp.tid() + offset
+    V = volume[t]
+    if V == 0.0:
+        for a in range(4):
+            corner_out[4 * t + a] = wp.vec3()
+        return
+    tet = tets[t]
+    u0 = wp.cw_mul(axes[tet[0]], p[tet[0]])
+    u1 = wp.cw_mul(axes[tet[1]], p[tet[1]])
+    u2 = wp.cw_mul(axes[tet[2]], p[tet[2]])
+    u3 = wp.cw_mul(axes[tet[3]], p[tet[3]])
+    M = rotated[t]
+    H = V * linear_stress(wp.matrix_from_cols(u1 - u0, u2 - u0, u3 - u0) * M, mu[t], lam[t]) * wp.transpose(M)
+    y1 = wp.vec3(H[0, 0], H[1, 0], H[2, 0])
+    y2 = wp.vec3(H[0, 1], H[1, 1], H[2, 1])
+    y3 = wp.vec3(H[0, 2], H[1, 2], H[2, 2])
+    corner_out[4 * t + 0] = -(y1 + y2 + y3)
+    corner_out[4 * t + 1] = y1
+    corner_out[4 * t + 2] = y2
+    corner_out[4 * t + 3] = y3
+
+
+@wp.func
+def apply_row(
+    i: int,
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_out: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    axes: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=wp.vec3),
+    c_mass: float,
+    c_stiff: float,
+) -> wp.vec3:
+    """Row ``i`` of the filtered ``S (c_mass M + c_stiff K') S p + (I - S) p`` from the per-corner products of
+    ``S p``, summed in incidence order."""
+    s = axes[i]
+    Kp = wp.vec3()
+    for k in range(node_offsets[i], node_offsets[i + 1]):
+        Kp += corner_out[node_corners[k]]
+    pi = p[i]
+    return wp.cw_mul(s, c_mass * mass[i] * wp.cw_mul(s, pi) + c_stiff * Kp) + wp.cw_mul(wp.vec3(1.0, 1.0, 1.0) - s, pi)
+
+
+@wp.kernel(enable_backward=False)
+def gather_products_kernel(
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_out: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    axes: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    c_mass: float,
+    c_stiff: float,
+    alpha: float,
+    beta: float,
+    project: int,
+    offset: int,
+    z: wp.array(dtype=wp.vec3),
+):
+    """``z = alpha A' p + beta y``.
+
+    With ``project``, ``A'`` is the filtered operator ``S A S + I - S`` (the
+    corners hold products of ``S p``); without, it is ``S A`` (the corners
+    hold products of the unmasked ``p``): the coupling of prescribed
+    velocities taken off the free rows of the right-hand side.
+    """
+    i = wp.tid() + offset
+    yi = wp.vec3()
+    if beta != 0.0:
+        yi = beta * y[i]
+    s = axes[i]
+    Ap = wp.vec3()
+    if project != 0:
+        Ap = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff)
+    else:
+        Kp = wp.vec3()
+        for k in range(node_offsets[i], node_offsets[i + 1]):
+            Kp += corner_out[node_corners[k]]
+        Ap = wp.cw_mul(s, c_mass * mass[i] * p[i] + c_stiff * Kp)
+    z[i] = alpha * Ap + yi
+
+
+# -- preconditioned conjugate gradients ------------------------------------------------------------
+# The node kernels of CG run over ``blocks`` contiguous node ranges, one thread each, and write one
+# partial dot product per block; the next kernel sums the partials in block order. The block count
+# depends on the node count only, so the sums (and the solution) are the same for every thread count.
+# Partial rows: 0 and 1 ``r.z`` (alternating by iteration parity), 2 ``r.r``, 3 ``b.b``, 4 ``p.Ap``.
+
+
+@wp.func
+def block_range(b: int, blocks: int, n: int) -> wp.vec2i:
+    return wp.vec2i(b * n // blocks, (b + 1) * n // blocks)
+
+
+@wp.func
+def partial_sum(partials: wp.array2d(dtype=float), row: int) -> float:
+    s = float(0.0)
+    for b in range(partials.shape[1]):
+        s += partials[row, b]
+    return s
+
+
+@wp.kernel(enable_backward=False)
+def start_cg_kernel(
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_out: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    axes: wp.array(dtype=wp.vec3),
+    inverse_block: wp.array(dtype=wp.mat33),
+    b_vec: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+    c_mass: float,
+    c_stiff: float,
+    n: int,
+    offset: int,
+    r: wp.array(dtype=wp.vec3),
+    z: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=wp.vec3),
+    partials: wp.array2d(dtype=float),
+):
+    """``r = b - A' x``, ``z = P r``, ``p = z``; partials ``r.z`` (row 0), ``r.r``, ``b.b``."""
+    blk = wp.tid() + offset
+    span = block_range(blk, partials.shape[1], n)
+    rz = float(0.0)
+    rr = float(0.0)
+    bb = float(0.0)
+    for i in range(span[0], span[1]):
+        bi = b_vec[i]
+        ri = bi - apply_row(i, node_offsets, node_corners, corner_out, mass, axes, x, c_mass, c_stiff)
+        zi = inverse_block[i] * ri
+        r[i] = ri
+        z[i] = zi
+        p[i] = zi
+        rz += wp.dot(ri, zi)
+        rr += wp.dot(ri, ri)
+        bb += wp.dot(bi, bi)
+    partials[0, blk] = rz
+    partials[2, blk] = rr
+    partials[3, blk] = bb
+
+
+@wp.kernel(enable_backward=False)
+def product_cg_kernel(
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_out: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    axes: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=wp.vec3),
+    c_mass: float,
+    c_stiff: float,
+    n: int,
+    offset: int,
+    Ap: wp.array(dtype=wp.vec3),
+    partials: wp.array2d(dtype=float),
+):
+    """``Ap = A' p``; partial ``p.Ap``."""
+    blk = wp.tid() + offset
+    span = block_range(blk, partials.shape[1], n)
+    pAp = float(0.0)
+    for i in range(span[0], span[1]):
+        y = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff)
+        Ap[i] = y
+        pAp += wp.dot(p[i], y)
+    partials[4, blk] = pAp
+
+
+@wp.kernel(enable_backward=False)
+def update_cg_kernel(
+    inverse_block: wp.array(dtype=wp.mat33),
+    p: wp.array(dtype=wp.vec3),
+    Ap: wp.array(dtype=wp.vec3),
+    parity: int,
+    n: int,
+    offset: int,
+    x: wp.array(dtype=wp.vec3),
+    r: wp.array(dtype=wp.vec3),
+    z: wp.array(dtype=wp.vec3),
+    partials: wp.array2d(dtype=float),
+):
+    """``alpha = r.z / p.Ap``; ``x += alpha p``, ``r -= alpha Ap``, ``z = P r``; partials: new ``r.z``, ``r.r``."""
+    blk = wp.tid() + offset
+    span = block_range(blk, partials.shape[1], n)
+    pAp = partial_sum(partials, 4)
+    alpha = float(0.0)
+    if pAp > 0.0:
+        alpha = partial_sum(partials, parity) / pAp
+    rz = float(0.0)
+    rr = float(0.0)
+    for i in range(span[0], span[1]):
+        x[i] = x[i] + alpha * p[i]
+        ri = r[i] - alpha * Ap[i]
+        zi = inverse_block[i] * ri
+        r[i] = ri
+        z[i] = zi
+        rz += wp.dot(ri, zi)
+        rr += wp.dot(ri, ri)
+    partials[1 - parity, blk] = rz
+    partials[2, blk] = rr
+
+
+@wp.kernel(enable_backward=False)
+def direction_cg_kernel(
+    z: wp.array(dtype=wp.vec3),
+    parity: int,
+    n: int,
+    offset: int,
+    p: wp.array(dtype=wp.vec3),
+    partials: wp.array2d(dtype=float),
+):
+    """``beta = r.z (new) / r.z (old)``; ``p = z + beta p``."""
+    blk = wp.tid() + offset
+    span = block_range(blk, partials.shape[1], n)
+    old = partial_sum(partials, parity)
+    beta = float(0.0)
+    if old > 0.0:
+        beta = partial_sum(partials, 1 - parity) / old
+    for i in range(span[0], span[1]):
+        p[i] = z[i] + beta * p[i]
+
+
+@wp.kernel(enable_backward=False)
+def advance_nodes_kernel(
+    x: wp.array(dtype=wp.vec3),
+    flags: wp.array(dtype=wp.uint8),
+    target: wp.array(dtype=wp.vec3),
+    axes: wp.array(dtype=wp.vec3),
+    h: float,
+    ground: int,
+    height: float,
+    offset: int,
+    v: wp.array(dtype=wp.vec3),
+    x_new: wp.array(dtype=wp.vec3),
+    moved: wp.array(dtype=wp.vec3),
+):
+    """``x_new = x + h v`` after the solve: fixed nodes onto their targets, ground contacts onto the plane.
+
+    A free node that the solve still carried below the plane is set onto it
+    (without its downward velocity). ``moved`` is the displacement a
+    constraint imposed (a fixed node's step, a contact's landing, a lift),
+    for the divergence check's work estimate.
+    """
+    i = wp.tid() + offset
+    flag = flags[i]
+    if flag == wp.uint8(FIXED):
+        x_new[i] = target[i]
+        moved[i] = target[i] - x[i]
+        return
+    if flag == wp.uint8(INACTIVE):
+        v[i] = wp.vec3()
+        x_new[i] = x[i]
+        moved[i] = wp.vec3()
+        return
+    xi = x[i]
+    vi = v[i]
+    p = xi + h * vi
+    lift = wp.vec3()
+    if ground != 0:
+        if axes[i][2] == 0.0:
+            lift = wp.vec3(0.0, 0.0, height - xi[2])
+            p = wp.vec3(p[0], p[1], height)
+        elif p[2] < height:
+            lift = wp.vec3(0.0, 0.0, height - p[2])
+            p = wp.vec3(p[0], p[1], height)
+            vi = wp.vec3(vi[0], vi[1], wp.max(vi[2], 0.0))
+    v[i] = vi
+    x_new[i] = p
+    moved[i] = lift
+
+
+@wp.kernel(enable_backward=False)
+def tet_bounds_kernel(
+    rest: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    volume: wp.array(dtype=float),
+    offset: int,
+    lowers: wp.array(dtype=wp.vec3),
+    uppers: wp.array(dtype=wp.vec3),
+):
+    """Rest AABB of each tet; dead tets get a box far away that no query reaches."""
+    t = wp.tid() + offset
+    if volume[t] == 0.0:
+        lowers[t] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+        uppers[t] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+        return
+    tet = tets[t]
+    lo = rest[tet[0]]
+    hi = rest[tet[0]]
+    for a in range(1, 4):
+        lo = wp.min(lo, rest[tet[a]])
+        hi = wp.max(hi, rest[tet[a]])
+    lowers[t] = lo
+    uppers[t] = hi
+
+
+@wp.func
+def triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
+    """Distance from ``p`` to triangle ``abc`` (Ericson 2005, section 5.1.5)."""
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1 = wp.dot(ab, ap)
+    d2 = wp.dot(ac, ap)
+    if d1 <= 0.0 and d2 <= 0.0:
+        return wp.length(ap)
+    bp = p - b
+    d3 = wp.dot(ab, bp)
+    d4 = wp.dot(ac, bp)
+    if d3 >= 0.0 and d4 <= d3:
+        return wp.length(bp)
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        return wp.length(ap - (d1 / (d1 - d3)) * ab)
+    cp = p - c
+    d5 = wp.dot(ab, cp)
+    d6 = wp.dot(ac, cp)
+    if d6 >= 0.0 and d5 <= d6:
+        return wp.length(cp)
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        return wp.length(ap - (d2 / (d2 - d6)) * ac)
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        return wp.length(bp - ((d4 - d3) / ((d4 - d3) + (d5 - d6))) * (c - b))
+    denom = 1.0 / (va + vb + vc)
+    return wp.length(ap - (vb * denom) * ab - (vc * denom) * ac)
+
+
+@wp.func
+def barycentric(p: wp.vec3, rest: wp.array(dtype=wp.vec3), tet: wp.vec4i, B: wp.mat33) -> wp.vec4:
+    """Barycentric coordinates of ``p`` in a rest tet (unclamped: outside, some are negative)."""
+    b = B * (p - rest[tet[0]])
+    return wp.vec4(1.0 - b[0] - b[1] - b[2], b[0], b[1], b[2])
+
+
+@wp.kernel(enable_backward=False)
+def embed_points_kernel(
+    bvh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    rest: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    dm_inv: wp.array(dtype=wp.mat33),
+    radius: float,
+    offset: int,
+    point_tet: wp.array(dtype=wp.int32),
+    point_bary: wp.array(dtype=wp.vec4),
+    point_distance: wp.array(dtype=float),
+):
+    """The containing rest tet of each point (the most interior one), else the nearest.
+
+    Boxes of radius ``radius`` around the point, doubled until they hold a
+    tet within the radius: a tet nearer than the best one found overlaps
+    the box, so the search is exact. Ties go to the smallest tet index, so
+    the result does not depend on the traversal order.
+    """
+    i = wp.tid() + offset
+    p = points[i]
+    r = radius
+    best = int(-1)
+    best_d = float(1.0e30)
+    best_in = float(-1.0e30)
+    for _round in range(64):
+        query = wp.bvh_query_aabb(bvh, p - wp.vec3(r, r, r), p + wp.vec3(r, r, r))
+        t = int(0)
+        while wp.bvh_query_next(query, t):
+            tet = tets[t]
+            b = barycentric(p, rest, tet, dm_inv[t])
+            inside = wp.min(wp.min(b[0], b[1]), wp.min(b[2], b[3]))
+            d = float(0.0)
+            if inside < 0.0:
+                x0 = rest[tet[0]]
+                x1 = rest[tet[1]]
+                x2 = rest[tet[2]]
+                x3 = rest[tet[3]]
+                d = wp.min(
+                    wp.min(triangle_distance(p, x1, x2, x3), triangle_distance(p, x0, x3, x2)),
+                    wp.min(triangle_distance(p, x0, x1, x3), triangle_distance(p, x0, x2, x1)),
+                )
+            better = d < best_d or (d == best_d and (inside > best_in or (inside == best_in and t < best)))
+            if better:
+                best = t
+                best_d = d
+                best_in = inside
+        if best >= 0 and best_d <= r:
+            break
+        r = 2.0 * r
+    point_tet[i] = best
+    point_distance[i] = best_d
+    if best >= 0:
+        point_bary[i] = barycentric(p, rest, tets[best], dm_inv[best])
+    else:
+        point_bary[i] = wp.vec4()
+
+
+@wp.kernel(enable_backward=False)
+def interpolate_points_kernel(
+    x: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    point_tet: wp.array(dtype=wp.int32),
+    point_bary: wp.array(dtype=wp.vec4),
+    offset: int,
+    out: wp.array(dtype=wp.vec3),
+):
+    """Deformed embedded points ``x0 + b1 (x1 - x0) + b2 (x2 - x0) + b3 (x3 - x0)`` (rounding scales with the tet)."""
+    i = wp.tid() + offset
+    tet = tets[point_tet[i]]
+    b = point_bary[i]
+    p0 = x[tet[0]]
+    out[i] = p0 + b[1] * (x[tet[1]] - p0) + b[2] * (x[tet[2]] - p0) + b[3] * (x[tet[3]] - p0)

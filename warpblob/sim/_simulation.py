@@ -1,0 +1,704 @@
+"""The soft-body simulation: implicit co-rotational linear FEM on tetrahedra (SPEC section 5.1).
+
+Müller & Gross 2004 ("Interactive virtual materials", GI 2004) give the
+method: per tet a rotation from the deformation gradient, the linear-elastic
+stiffness rotated by it, lumped masses, Rayleigh damping and backward Euler
+solved by conjugate gradients (:mod:`warpblob.sim._solver` says what is kept
+and lagged). Rotations come from a polar decomposition by SVD with the
+reflection fixed (Irving et al. 2004, :func:`warpblob.sim._kernels.polar_rotation`),
+so inverted and flat tets push back. Fixed nodes use the projection filter
+of Baraff & Witkin 1998. Units are any consistent set: with positions in
+metres, use pascals, kilograms per cubic metre and metres per second squared.
+Results are bit-identical for any CPU thread count: per-tet results are
+gathered per node in a fixed order and CG's dot products are summed over
+fixed node blocks (:mod:`warpblob.sim._kernels`), never with atomics.
+
+Ground contact (``ground=``): the plane ``z = height`` (z is up), inside the
+implicit solve as velocity constraints (Baraff & Witkin's filter). Each
+step predicts every free node's velocity from its own force; a node whose
+predicted position lies below the plane is in contact: its normal velocity
+is prescribed to land it on the plane (lifting it if it was below), which
+removes the normal velocity ``dv_n`` (inelastic contact). Coulomb friction
+with coefficient ``friction``: a contact whose predicted tangential speed is
+at most ``friction * dv_n`` sticks (its tangential velocity is held at 0),
+else it slides with the impulse ``friction * m * dv_n`` against its
+predicted tangential motion. Contacts separate when the prediction leaves
+the plane.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from .._device import resolve_device
+from .._errors import SimulationError
+from .._parallel import check_threads
+from ..mesh import TetMesh, TetStructure
+from . import _kernels as k
+from ._elements import Elements, material_values
+from ._embed import Embedding, embed, interpolate
+from ._solver import NODE_GRAIN, ElementState, ImplicitSolver, split_launch
+
+__all__ = ["Simulation"]
+
+#: a step diverged when its kinetic plus elastic energy exceeds this many times its budget (see Simulation.step)
+BLOWUP = 10.0
+_STAGES = ("assembly", "cg", "update", "elements", "check")
+
+
+def _vector(name: str, value, length: int = 3) -> tuple:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SimulationError(f"{name} must be {length} numbers, got {value!r}") from None
+    if arr.shape != (length,) or not np.isfinite(arr).all():
+        raise SimulationError(f"{name} must be {length} finite numbers, got {value!r}")
+    return tuple(float(a) for a in arr)
+
+
+def _number(name: str, value, *, low: float | None = None, strict: bool = True) -> float:
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not number or not np.isfinite(value):
+        raise SimulationError(f"{name} must be a finite number, got {value!r}")
+    if low is not None and (value <= low if strict else value < low):
+        raise SimulationError(f"{name} must be {'>' if strict else '>='} {low}, got {value!r}")
+    return float(value)
+
+
+class Simulation:
+    """Implicit co-rotational FEM of a tet mesh, every per-element and per-node loop a Warp kernel.
+
+    Args:
+        volume: a :class:`~warpblob.mesh.TetMesh` (rest shape = its nodes) or a
+            :class:`~warpblob.mesh.TetStructure` (rest and current positions
+            from its nodes; node and tet indices are its slots, dead ones
+            included and inert).
+        young: Young's modulus E (> 0, e.g. Pa): a number, a (T,) array or a
+            dict from material id (``volume.material``) to value.
+        poisson: Poisson's ratio nu in (-1, 0.5), likewise.
+        density: mass density (> 0, e.g. kg/m^3), likewise.
+        dt: time step (s).
+        gravity: acceleration (3,) (e.g. m/s^2).
+        damping: Rayleigh coefficients ``(alpha, beta)`` >= 0, ``C = alpha M + beta K'``.
+        fixed: Dirichlet nodes, a (N,) bool mask or node indices; they keep
+            their positions until moved by :attr:`fixed_positions`.
+        ground: None, a height, or ``(height, friction)``: the plane
+            ``z = height`` with Coulomb friction coefficient ``friction``
+            (default 0.5); see the module docstring for the contact model.
+        tolerance: CG tolerance, relative to the right-hand side's norm.
+        max_iterations: CG iteration cap per step.
+        device: Warp device (default: Warp's default device).
+        threads: CPU threads (default: :func:`warpblob.thread_count` when the
+            simulation is built); results are bit-identical for any count.
+
+    Attributes:
+        time: simulated time (s), advanced by :meth:`step`.
+        dt, gravity, damping, ground, tolerance, max_iterations: as given.
+        elements: the :class:`~warpblob.sim.Elements` (flat per-tet and per-node data).
+        stats: the last step's ``seconds`` per stage (``assembly``: right-hand
+            side and preconditioner; ``cg``; ``update``: positions and
+            contacts; ``elements``: the rotation and force pass; ``check``:
+            divergence), their ``seconds_total``, ``cg_iterations`` (last and
+            ``cg_iterations_total``), the CG ``residual`` and
+            ``relative_residual``, ``steps``, ``tet_count``, ``node_count``, ``device``.
+
+    Raises:
+        SimulationError: a bad parameter, a NaN in the mesh or the inputs, a
+            fixed mask of the wrong length or a bad node index, an inverted or
+            zero-volume rest tet; the message names the value and the tet or node.
+
+    Example:
+        >>> import numpy as np, warpblob as wb
+        >>> beam = wb.mesh.box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (5, 1, 1))
+        >>> sim = wb.Simulation(beam, young=1e6, poisson=0.3, density=1000.0, fixed=beam.nodes[:, 0] == 0.0)
+        >>> sim.step(10)
+        >>> bool(sim.positions[:, 2].min() < 0.0), round(sim.time, 4)
+        (True, 0.1667)
+    """
+
+    def __init__(
+        self,
+        volume,
+        *,
+        young,
+        poisson,
+        density,
+        dt: float = 1.0 / 60.0,
+        gravity=(0.0, 0.0, -9.81),
+        damping=(0.0, 0.0),
+        fixed=None,
+        ground=None,
+        tolerance: float = 1e-4,
+        max_iterations: int = 200,
+        device=None,
+        threads: int | None = None,
+    ):
+        self.threads = check_threads(threads)
+        self.device = resolve_device(device)
+        if isinstance(volume, TetStructure):
+            self._structure = volume
+            rest = np.asarray(volume.node_rest, dtype=np.float64)
+            positions = np.asarray(volume.node_position, dtype=np.float64)
+            tets = np.asarray(volume.cell_nodes)
+            alive = np.asarray(volume.cell_alive, dtype=bool)
+            material = np.asarray(volume.cell_material, dtype=np.int32)
+        elif isinstance(volume, TetMesh):
+            self._structure = None
+            rest = positions = np.asarray(volume.nodes, dtype=np.float64)
+            tets = volume.tets
+            alive = np.ones(volume.tet_count, dtype=bool)
+            material = volume.material if volume.material is not None else np.zeros(volume.tet_count, dtype=np.int32)
+        else:
+            raise SimulationError(f"volume must be a TetMesh or a TetStructure, got {type(volume).__name__}")
+        if len(tets) == 0 or not alive.any():
+            raise SimulationError("volume has no tets")
+        for name, arr in (("rest position", rest), ("position", positions)):
+            bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+            if bad.size:
+                raise SimulationError(f"node {bad[0]} has {name} {arr[bad[0]].tolist()}, which is not finite")
+        material = np.asarray(material)
+        self._specs = {"young": young, "poisson": poisson, "density": density}
+        E = material_values("young", young, material, positive=True)
+        nu = material_values("poisson", poisson, material, bounds=(-1.0, 0.5))
+        rho = material_values("density", density, material, positive=True)
+        self.dt = _number("dt", dt, low=0.0)
+        self.gravity = _vector("gravity", gravity)
+        d = _vector("damping", damping, 2)
+        if min(d) < 0:
+            raise SimulationError(f"damping coefficients must be >= 0, got {damping!r}")
+        self.damping = d
+        self.ground = self._ground(ground)
+        self.tolerance = _number("tolerance", tolerance, low=0.0)
+        if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
+            raise SimulationError(f"max_iterations must be a positive integer, got {max_iterations!r}")
+        self.max_iterations = int(max_iterations)
+        self.elements = Elements(rest, tets, alive, E, nu, rho, device=self.device, threads=self.threads)
+        self._allocate(positions, np.zeros_like(positions))
+        self.fixed = fixed
+        self.time = 0.0
+        self._embedding: Embedding | None = None
+        self.stats: dict = {
+            "steps": 0,
+            "seconds": dict.fromkeys(_STAGES, 0.0),
+            "seconds_total": dict.fromkeys(_STAGES, 0.0),
+            "cg_iterations": 0,
+            "cg_iterations_total": 0,
+            "residual": 0.0,
+            "relative_residual": 0.0,
+            "tet_count": self.tet_count,
+            "node_count": self.node_count,
+            "device": str(self.device),
+        }
+
+    # -- set-up ----------------------------------------------------------------
+
+    @staticmethod
+    def _ground(ground):
+        if ground is None:
+            return None
+        if isinstance(ground, (tuple, list)):
+            if len(ground) != 2:
+                raise SimulationError(f"ground must be a height or (height, friction), got {ground!r}")
+            height, friction = ground
+        else:
+            height, friction = ground, 0.5
+        return _number("ground height", height), _number("ground friction", friction, low=0.0, strict=False)
+
+    def _allocate(self, positions: np.ndarray, velocities: np.ndarray) -> None:
+        dev, e = self.device, self.elements
+        N, T = e.node_count, e.tet_count
+        # double buffers: a step writes the other one, so a failed step leaves the state as it was
+        x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=dev)
+        v = wp.array(velocities.astype(np.float32), dtype=wp.vec3, device=dev)
+        self._x = [x, wp.zeros_like(x)]
+        self._v = [v, wp.zeros_like(v)]
+        self._cur = 0
+        self._target = wp.clone(self._x[0])
+        self._external = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self._moved = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self._flags = wp.zeros(N, dtype=wp.uint8, device=dev)
+        self._states = [ElementState(T, N, dev), ElementState(T, N, dev)]
+        self._solver = ImplicitSolver(e, self._flags, self._states, self.threads)
+        self._mass = e.mass.numpy().astype(np.float64)
+        # |m|_2: the right-hand side's norm per unit velocity, the scale of CG's absolute tolerance
+        self._momentum = float(np.sqrt(np.sum(self._mass**2)))
+        if not (self._mass > 0).any():
+            raise SimulationError("volume has no mass: every live tet has zero volume")
+        lo = e.rest_host[self._mass > 0].min(axis=0)
+        hi = e.rest_host[self._mass > 0].max(axis=0)
+        self._size = float(np.linalg.norm(hi - lo)) or 1.0
+        self._fixed_mask = np.zeros(N, dtype=bool)
+        self._moving = False
+
+    def _update_flags(self) -> None:
+        flags = np.where(self._fixed_mask, k.FIXED, np.where(self._mass > 0, k.FREE, k.INACTIVE)).astype(np.uint8)
+        self._flags.assign(flags)
+        self._refresh()
+
+    def _refresh(self) -> None:
+        """Recompute the element pass at the current positions (after the caller changed the state)."""
+        self._state.compute(self.elements, self._x[self._cur], self.threads)
+        self._budget = self._mechanical_energy(self._v[self._cur].numpy(), self._state)
+
+    @property
+    def _state(self) -> ElementState:
+        return self._states[self._cur]
+
+    # -- sizes and state -------------------------------------------------------
+
+    @property
+    def node_count(self) -> int:
+        return self.elements.node_count
+
+    @property
+    def tet_count(self) -> int:
+        return self.elements.tet_count
+
+    @property
+    def rest_positions(self) -> np.ndarray:
+        """(N, 3) float32 rest positions (a copy)."""
+        return self.elements.rest_host.copy()
+
+    def _nodal(self, name: str, value, rows: int | None = None) -> np.ndarray:
+        rows = self.node_count if rows is None else rows
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise SimulationError(
+                f"{name} must be a ({rows}, 3) array of numbers, got {type(value).__name__}"
+            ) from None
+        if arr.shape != (rows, 3):
+            raise SimulationError(f"{name} must have shape ({rows}, 3), got {arr.shape}")
+        bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+        if bad.size:
+            raise SimulationError(f"{name}[{bad[0]}] = {arr[bad[0]].tolist()} is not finite")
+        return arr.astype(np.float32)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(N, 3) float32 current node positions (a copy). Setting them also moves the fixed nodes' targets there."""
+        return self._x[self._cur].numpy().copy()
+
+    @positions.setter
+    def positions(self, value) -> None:
+        arr = self._nodal("positions", value)
+        self._x[self._cur].assign(arr)
+        target = self._target.numpy().copy()
+        target[self._fixed_mask] = arr[self._fixed_mask]
+        self._target.assign(target)
+        self._moving = False
+        self._refresh()
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """(N, 3) float32 current node velocities (a copy); settable."""
+        return self._v[self._cur].numpy().copy()
+
+    @velocities.setter
+    def velocities(self, value) -> None:
+        self._v[self._cur].assign(self._nodal("velocities", value))
+        self._refresh()
+
+    @property
+    def external_forces(self) -> np.ndarray:
+        """(N, 3) float32 extra nodal forces applied every step (e.g. N; zero by default); settable."""
+        return self._external.numpy().copy()
+
+    @external_forces.setter
+    def external_forces(self, value) -> None:
+        self._external.assign(self._nodal("external_forces", value))
+
+    @property
+    def masses(self) -> np.ndarray:
+        """(N,) float64 lumped node masses (a quarter of ``density * volume`` of each incident tet)."""
+        return self._mass.copy()
+
+    @property
+    def fixed(self) -> np.ndarray:
+        """Sorted (F,) int indices of the fixed nodes. Set a (N,) bool mask, node indices or None."""
+        return np.flatnonzero(self._fixed_mask)
+
+    @fixed.setter
+    def fixed(self, value) -> None:
+        N = self.node_count
+        mask = np.zeros(N, dtype=bool)
+        if value is not None:
+            arr = np.asarray(value)
+            if arr.dtype == bool:
+                if arr.shape != (N,):
+                    raise SimulationError(f"fixed: a mask must have shape ({N},) (one flag per node), got {arr.shape}")
+                mask = arr.copy()
+            else:
+                if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+                    raise SimulationError(f"fixed must be a ({N},) bool mask or 1-D node indices, got {value!r}")
+                bad = np.flatnonzero((arr < 0) | (arr >= N))
+                if bad.size:
+                    raise SimulationError(f"fixed: node index {arr[bad[0]]} is outside [0, {N})")
+                mask[arr] = True
+        newly = mask & ~self._fixed_mask
+        if newly.any():
+            target = self._target.numpy().copy()
+            target[newly] = self._x[self._cur].numpy()[newly]
+            self._target.assign(target)
+        self._fixed_mask = mask
+        self._update_flags()
+
+    @property
+    def fixed_positions(self) -> np.ndarray:
+        """(F, 3) float32 targets of the fixed nodes, in :attr:`fixed` order.
+
+        Set new targets to move the fixed nodes: the next step gives each the
+        velocity ``(target - x) / dt``, which lands it on its target.
+        """
+        return self._target.numpy()[self._fixed_mask].copy()
+
+    @fixed_positions.setter
+    def fixed_positions(self, value) -> None:
+        arr = self._nodal("fixed_positions", value, int(self._fixed_mask.sum()))
+        target = self._target.numpy().copy()
+        target[self._fixed_mask] = arr
+        self._target.assign(target)
+        self._moving = bool(np.any(arr != self._x[self._cur].numpy()[self._fixed_mask]))
+
+    # -- measures --------------------------------------------------------------
+
+    def volume(self) -> float:
+        """Current total volume (model units cubed): the sum of the signed volumes of the deformed tets."""
+        return float(self._state.volume.numpy().astype(np.float64).sum())
+
+    def _mechanical_energy(self, v: np.ndarray, state: ElementState) -> float:
+        kinetic = 0.5 * float(np.dot(self._mass, (v.astype(np.float64) ** 2).sum(axis=1)))
+        return kinetic + float(state.energy.numpy().astype(np.float64).sum())
+
+    def energy(self) -> dict:
+        """Kinetic, elastic (co-rotated), gravitational (``-sum m g . x``) and total energy (e.g. J)."""
+        v = self._v[self._cur].numpy().astype(np.float64)
+        x = self._x[self._cur].numpy().astype(np.float64)
+        kinetic = 0.5 * float(np.dot(self._mass, (v**2).sum(axis=1)))
+        elastic = float(self._state.energy.numpy().astype(np.float64).sum())
+        gravitational = -float(np.dot(self._mass, x @ np.asarray(self.gravity)))
+        return {
+            "kinetic": kinetic,
+            "elastic": elastic,
+            "gravitational": gravitational,
+            "total": kinetic + elastic + gravitational,
+        }
+
+    def elastic_forces(self) -> np.ndarray:
+        """(N, 3) float32 elastic node forces ``-R K (R^T x - X)`` at the current positions."""
+        return self._state.node_force.numpy().copy()
+
+    def multiply(self, p, *, stiffness: float = 1.0, mass: float = 0.0) -> np.ndarray:
+        """``(mass M + stiffness K') p`` for (N, 3) ``p``, with ``K'`` at the current rotations.
+
+        The step's system matrix is ``mass = 1 + dt alpha``, ``stiffness =
+        dt beta + dt^2``; fixed rows are identity rows (ground contacts are
+        left out: they depend on the step). For tests and tools.
+        """
+        arr = wp.array(self._nodal("p", p), dtype=wp.vec3, device=self.device)
+        out = wp.zeros_like(arr)
+        free = (self._flags.numpy() == k.FREE).astype(np.float32)
+        self._solver.axes.assign(np.repeat(free[:, None], 3, axis=1))
+        self._solver.multiply(self._state, arr, out, float(mass), float(stiffness))
+        return out.numpy().copy()
+
+    # -- time stepping ---------------------------------------------------------
+
+    def _sync(self) -> float:
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+        return time.perf_counter()
+
+    def step(self, n: int = 1) -> None:
+        """Advance ``n`` steps of ``dt``.
+
+        Each step: assemble the right-hand side and the block-Jacobi
+        preconditioner from the element pass at the current positions
+        (``assembly``); solve the backward-Euler system by CG (``cg``);
+        move the nodes, with ground contact (``update``); run the element
+        pass at the new positions, which the next step reuses (``elements``);
+        and check for divergence (``check``, one host sync). :attr:`stats`
+        gets each stage's seconds, the CG iterations and residual.
+
+        A step diverged when a position or velocity is not finite, or when
+        its kinetic plus elastic energy exceeds ``BLOWUP`` (10) times the
+        budget: the previous kinetic plus elastic energy, plus the work that
+        gravity, the external forces and the constraints (moved fixed nodes,
+        ground lifts; at the end force) did in the step. Backward Euler only
+        dissipates, so a legitimate step stays within 1x.
+
+        Raises:
+            SimulationError: a step diverged; the state (positions,
+                velocities, time) is that before the failed step.
+        """
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise SimulationError(f"step: n must be a non-negative integer, got {n!r}")
+        for _ in range(int(n)):
+            self._step()
+
+    def _step(self) -> None:
+        h = self.dt
+        alpha, beta = self.damping
+        cur, nxt = self._cur, 1 - self._cur
+        e, dev, th = self.elements, self.device, self.threads
+        x0, v0, x1, v1 = self._x[cur], self._v[cur], self._x[nxt], self._v[nxt]
+        state, new_state = self._states[cur], self._states[nxt]
+        ground = self.ground or (0.0, 0.0)
+
+        t0 = self._sync()
+        self._solver.assemble(state, x0, v0, self._target, self._external, self.gravity, h, 1.0 + h * alpha,
+                              h * beta + h * h, v1, ground=None if self.ground is None else ground[0],
+                              friction=ground[1], moving=self._moving)  # fmt: skip
+        t1 = self._sync()
+        atol = self.tolerance * 1e-6 * self._size / h * self._momentum
+        iterations, residual, rhs_norm = self._solver.solve(state, v1, 1.0 + h * alpha, h * beta + h * h,
+                                                            self.tolerance, atol, self.max_iterations)  # fmt: skip
+        if not (np.isfinite(residual) and np.isfinite(rhs_norm)):
+            raise SimulationError(
+                f"step at t = {self.time:.6g} diverged: the linear solve overflowed (residual {residual:.6g}, "
+                f"right-hand side {rhs_norm:.6g}); the state is that before the step (try a smaller dt)"
+            )
+        t2 = self._sync()
+        split_launch(k.advance_nodes_kernel, e.node_count,
+                     [x0, self._flags, self._target, self._solver.axes, float(h), int(self.ground is not None),
+                      ground[0]],
+                     [v1, x1, self._moved], dev, th, NODE_GRAIN)  # fmt: skip
+        t3 = self._sync()
+        new_state.compute(e, x1, th)
+        t4 = self._sync()
+        # host sync: the divergence check reads the new state
+        energy = self._check(x0, x1, v1, new_state)
+        t5 = time.perf_counter()
+
+        self._cur = nxt
+        self._budget = energy
+        self.time += h
+        self._moving = False
+        laps = dict(zip(_STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)))
+        s = self.stats
+        s["steps"] += 1
+        s["seconds"] = laps
+        s["seconds_total"] = {name: s["seconds_total"][name] + laps[name] for name in _STAGES}
+        s["cg_iterations"] = iterations
+        s["cg_iterations_total"] += iterations
+        s["residual"] = residual
+        s["relative_residual"] = residual / rhs_norm if rhs_norm > 0 else 0.0
+
+    def _check(self, x0, x1, v1, state) -> float:
+        xa, xb, vb = x0.numpy().astype(np.float64), x1.numpy().astype(np.float64), v1.numpy().astype(np.float64)
+        bad = np.flatnonzero(~(np.isfinite(xb).all(axis=1) & np.isfinite(vb).all(axis=1)))
+        if bad.size:
+            raise SimulationError(
+                f"step at t = {self.time:.6g} diverged: node {bad[0]} has position {xb[bad[0]].tolist()} and "
+                f"velocity {vb[bad[0]].tolist()}; the state is that before the step (try a smaller dt)"
+            )
+        energy = self._mechanical_energy(vb, state)
+        dx = xb - xa
+        g = np.asarray(self.gravity)
+        work = abs(float(np.dot(self._mass, dx @ g)))
+        work += abs(float(np.sum(self._external.numpy().astype(np.float64) * dx)))
+        work += float(np.abs(np.sum(state.node_force.numpy().astype(np.float64) * self._moved.numpy(), axis=1)).sum())
+        floor = 1e-12 * float(self._mass.sum()) * (self._size / self.dt) ** 2
+        budget = self._budget + work
+        if not np.isfinite(energy) or energy > BLOWUP * budget + floor:
+            raise SimulationError(
+                f"step at t = {self.time:.6g} diverged: kinetic + elastic energy {energy:.6g} exceeds "
+                f"{BLOWUP:g} x the budget {budget:.6g}; the state is that before the step (try a smaller dt)"
+            )
+        return energy
+
+    def solve_static(
+        self, *, max_iterations: int = 30, tolerance: float = 1e-4, cg_max_iterations: int = 20000
+    ) -> dict:
+        """Move to static equilibrium under gravity, the external forces and the fixed nodes (velocities zero).
+
+        Newton's method with the rotations lagged per iteration: solve
+        ``K' dx = f(x) + M g + f_ext`` (fixed nodes: ``dx`` to their targets)
+        by CG, ``x += dx``, until the largest update is below ``tolerance``
+        times the largest displacement so far. (The force imbalance itself
+        bottoms out at float32 rounding: the elastic forces are large terms
+        that cancel, so it only informs.) The ground is ignored, and every
+        part of the mesh must hold a fixed node (``K'`` of a free part is singular).
+
+        Returns:
+            ``{"iterations", "update", "residual", "cg_iterations"}``: Newton
+            iterations, last update relative to the displacement, final force
+            imbalance of the free nodes relative to the load (or to the fixed
+            nodes' reactions, without a load), total CG iterations.
+
+        Raises:
+            SimulationError: no fixed node, or a non-finite result.
+        """
+        if not self._fixed_mask.any():
+            raise SimulationError("solve_static needs fixed nodes (an unconstrained body has no static equilibrium)")
+        e, dev, th = self.elements, self.device, self.threads
+        free = (self._mass > 0) & ~self._fixed_mask
+        load = self._mass[:, None] * np.asarray(self.gravity)[None, :] + self._external.numpy()
+        scale = float(np.linalg.norm(load[free]))
+        start = self.positions.astype(np.float64)
+        zero = wp.zeros(e.node_count, dtype=wp.vec3, device=dev)
+        dx = wp.zeros(e.node_count, dtype=wp.vec3, device=dev)
+        cg_total, update, residual, iterations = 0, np.inf, np.inf, 0
+        for iterations in range(1, max_iterations + 1):
+            cur = self._cur
+            x0, x1, state = self._x[cur], self._x[1 - cur], self._states[cur]
+            self._solver.assemble(state, x0, zero, self._target, self._external, self.gravity, 1.0, 0.0, 1.0, dx,
+                                  moving=True)  # fmt: skip
+            it, _, _ = self._solver.solve(state, dx, 0.0, 1.0, tolerance * 0.1, tolerance * 1e-4 * max(scale, 1e-30),
+                                          cg_max_iterations)  # fmt: skip
+            cg_total += it
+            split_launch(k.advance_nodes_kernel, e.node_count,
+                         [x0, self._flags, self._target, self._solver.axes, 1.0, 0, 0.0],
+                         [dx, x1, self._moved], dev, th, NODE_GRAIN)  # fmt: skip
+            self._states[1 - cur].compute(e, x1, th)
+            self._cur = 1 - cur
+            # host sync: the update and the imbalance decide the next iteration
+            step = np.abs(dx.numpy()[free]).max(initial=0.0)
+            moved = np.abs(self._x[self._cur].numpy() - start).max(initial=0.0)
+            imbalance = self._state.node_force.numpy().astype(np.float64) + load
+            # relative to the load, or to the reactions of the fixed nodes when they alone load the body
+            reaction = float(np.linalg.norm(imbalance[self._fixed_mask]))
+            residual = float(np.linalg.norm(imbalance[free])) / max(scale, reaction, 1e-30)
+            update = float(step / max(moved, 1e-30))
+            if not (np.isfinite(residual) and np.isfinite(update)):
+                raise SimulationError(f"solve_static diverged at iteration {iterations}")
+            if update < tolerance or step <= 1e-7 * self._size:
+                break
+        self._v[self._cur].zero_()
+        self._moving = False
+        self._refresh()
+        return {"iterations": iterations, "update": update, "residual": residual, "cg_iterations": cg_total}
+
+    def record(self, path, steps: int, *, every: int = 1, progress: bool | None = None):
+        """Step ``steps`` times and write the motion as a time-sampled USD stage: the tet mesh and the bound surface.
+
+        The stage (``/Simulation/Volume``, a ``UsdGeom.TetMesh``, and
+        ``/Simulation/Surface`` when a surface is bound) holds the current
+        state at time code 0 and one frame per ``every`` steps after it, at
+        ``1 / (every dt)`` time codes per second (it plays in real time). The
+        file is written once, atomically, at the end.
+
+        Args:
+            path: ``.usda`` / ``.usdc`` / ``.usd`` file; its directory must exist.
+            steps: number of steps (>= 1).
+            every: steps per recorded frame (>= 1).
+            progress: show a progress bar (default: on a terminal, for runs of 100 steps or more).
+
+        Returns:
+            ``path`` as a :class:`pathlib.Path`.
+
+        Raises:
+            SimulationError: bad ``steps`` or ``every``, or a diverged step (nothing is written).
+            WarpblobError: a bad path suffix.
+            OSError: the directory does not exist or USD could not write.
+        """
+        from .._progress import progress as bar
+        from ..io._anim import AnimationWriter
+
+        for name, value in (("steps", steps), ("every", every)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise SimulationError(f"record: {name} must be a positive integer, got {value!r}")
+        live = self.elements.tets_host[self.elements.alive_host]
+        faces = TetMesh(self.elements.rest_host, live).surface_faces() if len(live) else np.zeros((0, 3), np.int32)
+        surface = self._embedding.mesh if self._embedding is not None else None
+        writer = AnimationWriter(path, live, faces, surface, fps=1.0 / (self.dt * every))
+
+        def frame():
+            writer.add(self.positions, None if surface is None else self.surface_positions())
+
+        frame()
+        show = progress if progress is not None else steps >= 100
+        for i in bar(range(steps), desc="simulate", total=steps) if show else range(steps):
+            self.step()
+            if (i + 1) % every == 0:
+                frame()
+        return writer.save()
+
+    # -- topology changes ------------------------------------------------------
+
+    def rebuild(self, tet_ids=None, **changes) -> None:
+        """Rebuild element data after a topology change: the call the cutting code makes after each edit.
+
+        ``tet_ids`` and ``changes`` (``tets``, ``alive``, ``rest``, ``young``,
+        ``poisson``, ``density``) are those of
+        :meth:`~warpblob.sim._elements.Elements.rebuild`. Built from a
+        :class:`~warpblob.mesh.TetStructure` and called without ``tets``, the
+        changed slots (default: all) are re-read from the structure: cell
+        nodes, live flags, the materials' values by material id, node rest
+        positions. Nodes added since start at the structure's current
+        position (a TetMesh's: at rest) with zero velocity, free; positions,
+        velocities and fixed flags of the others stay.
+
+        Raises:
+            SimulationError: as :meth:`Elements.rebuild`.
+        """
+        e = self.elements
+        if self._structure is not None and "tets" not in changes:
+            s = self._structure
+            ids = np.arange(len(s.cell_nodes)) if tet_ids is None else np.asarray(tet_ids, dtype=np.int64)
+            read = {"tets": np.asarray(s.cell_nodes)[ids], "alive": np.asarray(s.cell_alive, dtype=bool)[ids],
+                    "rest": np.asarray(s.node_rest)}  # fmt: skip
+            material = np.asarray(s.cell_material)[ids]
+            for name, spec in self._specs.items():
+                if name in changes:
+                    continue
+                if np.ndim(spec) == 0 or isinstance(spec, dict):
+                    read[name] = material_values(name, spec, material, tet_ids=ids)
+                elif ids.size and ids.max() >= len(spec):
+                    raise SimulationError(f"rebuild: {name} was given per tet; give {name}= for the new tets")
+                else:
+                    read[name] = np.asarray(spec, dtype=np.float64)[ids]
+            changes = {**read, **changes}
+            tet_ids = ids
+        old_n = e.node_count
+        x, v = self.positions, self.velocities
+        target, external, mask = self._target.numpy(), self._external.numpy(), self._fixed_mask
+        e.rebuild(tet_ids, **changes)
+        grow = e.node_count - old_n
+        added = e.rest_host[old_n:]
+        if self._structure is not None:
+            added = np.asarray(self._structure.node_position, dtype=np.float32)[old_n : e.node_count]
+        pad = lambda a, fill: np.concatenate([a, fill])  # noqa: E731
+        self._allocate(pad(x, added).astype(np.float64), pad(v, np.zeros((grow, 3), np.float32)).astype(np.float64))
+        self._target.assign(pad(target, added))
+        self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))
+        self._fixed_mask = pad(mask, np.zeros(grow, dtype=bool))
+        self._update_flags()
+        self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count
+        if self._embedding is not None:
+            self._embedding = embed(e, self._embedding.mesh, threads=self.threads)
+
+    # -- embedded surface ------------------------------------------------------
+
+    def surface(self, mesh) -> Embedding:
+        """Bind a surface (e.g. the polygonized model) to the rest tets; it then follows the volume.
+
+        Each vertex gets the barycentric coordinates of the rest tet holding
+        it, or of the nearest tet when it lies outside the volume (found with
+        a ``wp.Bvh``). Replaces any surface bound before.
+
+        Returns:
+            The :class:`~warpblob.sim._embed.Embedding` (tet, barycentric
+            coordinates and rest distance per vertex).
+        """
+        self._embedding = embed(self.elements, mesh, threads=self.threads)
+        return self._embedding
+
+    def surface_positions(self) -> np.ndarray:
+        """(V, 3) float32 deformed vertices of the bound surface (one kernel).
+
+        Raises:
+            SimulationError: no surface is bound (:meth:`surface`).
+        """
+        if self._embedding is None:
+            raise SimulationError("surface_positions: bind a surface first with sim.surface(mesh)")
+        return interpolate(self._embedding, self.elements, self._x[self._cur], threads=self.threads)
+
+    def __repr__(self) -> str:
+        return (
+            f"Simulation({self.tet_count} tets, {self.node_count} nodes, {int(self._fixed_mask.sum())} fixed, "
+            f"dt={self.dt:.6g}, t={self.time:.6g}, device={self.device})"
+        )

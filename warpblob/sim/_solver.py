@@ -1,0 +1,277 @@
+"""Backward Euler with a matrix-free, block-Jacobi preconditioned conjugate-gradient solve.
+
+One step from ``(x, v)`` with ``h = dt`` (Müller & Gross 2004, section 4;
+Baraff & Witkin 1998 for the velocity form): with the rotations ``R`` of the
+tets at ``x`` held fixed for the step, the elastic force
+``f(y) = -R K (R^T y - X)`` is linear in ``y``, so backward Euler
+
+    M (v' - v) = h (f(x + h v') + M g + f_ext - C v'),   C = alpha M + beta K',
+
+becomes the linear system
+
+    ((1 + h alpha) M + (h beta + h^2) K') v' = M v + h (f(x) + M g + f_ext),
+
+symmetric positive definite (``K' = R K R^T`` is positive semi-definite,
+``M`` lumped and positive). Kept: the full linear-elastic ``K`` of each tet,
+rotated by that tet's own ``R``, and the force's rest-shape term ``R K X``.
+Lagged: ``R`` itself, computed once per step at ``x``. Dropped: the
+derivative of ``R`` with respect to the positions (the stiffness-rotation
+terms), which Müller & Gross also drop; it multiplies the stress, so near
+any rigid motion ``K'`` is the exact stiffness.
+
+Dirichlet nodes enter by the projection filter of Baraff & Witkin: with
+``S`` zeroing fixed rows, CG solves ``(S A S + I - S) v' = S (b - A v_p) + v_p``,
+whose fixed entries stay at their prescribed velocities ``v_p``.
+
+The solver is preconditioned CG (Saad 2003, algorithm 9.1) warm-started from
+``v``, with a tolerance relative to the right-hand side and an iteration
+cap, in four fused kernels per iteration: the per-tet product ``K' p``, then
+three per-node passes that also form the dot products (partial sums per
+fixed node block, summed in block order). ``warp.optim.linear.cg`` with a
+``LinearOperator`` does the same algebra, but on the CPU it launches seven
+kernels per iteration, resolving the generic ones' overloads each time,
+which cost more than the arithmetic of a 10K-tet mesh; here the launches are
+recorded once and replayed.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import warp as wp
+
+from .._parallel import _submit, launch, thread_count
+from . import _kernels as k
+
+__all__ = ["ElementState", "ImplicitSolver", "Prepared", "split_launch"]
+
+#: items below which a launch is not worth splitting over threads: heavy per-tet kernels, light per-node ones
+TET_GRAIN = 2048
+NODE_GRAIN = 8192
+#: nodes per CG block (the unit of the deterministic partial sums); at most MAX_BLOCKS blocks on the CPU
+BLOCK_NODES = 64
+MAX_BLOCKS = 64
+
+
+def split_launch(kernel, dim: int, before: list, after: list, device, threads, grain: int) -> None:
+    """:func:`~warpblob._parallel.launch` cut into one piece per thread (each at least ``grain`` items).
+
+    The kernels of a step cost the same per item, so one contiguous piece
+    per thread balances them and keeps the launch count (Python overhead,
+    tens of microseconds each) at the thread count.
+    """
+    n = threads if threads is not None else thread_count()
+    launch(kernel, dim, before, after, device, threads, min_chunk=max(grain, dim // max(n, 1)))
+
+
+class Prepared:
+    """A kernel over ``[0, dim)`` recorded once as one launch per piece, replayed by calling the object.
+
+    The pieces are contiguous, one per thread (each at least ``grain``
+    items) as in :func:`split_launch`; replaying skips the argument packing
+    and overload lookup of ``wp.launch``. :meth:`set` changes an argument
+    (by its index in the kernel's parameter list) in every piece.
+    """
+
+    def __init__(self, kernel, dim: int, before: list, after: list, device, threads, grain: int):
+        n = threads if threads is not None else thread_count()
+        pieces = 1 if device.is_cuda or n <= 1 or dim < 2 * grain else min(n, dim // grain)
+        bounds = [dim * i // pieces for i in range(pieces + 1)]
+        self._launches = [
+            wp.launch(kernel, dim=b1 - b0, inputs=[*before, b0, *after], device=device, record_cmd=True)
+            for b0, b1 in zip(bounds[:-1], bounds[1:])
+            if b1 > b0
+        ]
+
+    def set(self, index: int, value) -> None:
+        for item in self._launches:
+            item.set_param_at_index(index, value)
+
+    def __call__(self) -> None:
+        first, *rest = self._launches
+        if not rest:
+            first.launch()
+            return
+        queue = iter(rest)
+        lock = threading.Lock()
+
+        def work():
+            while True:
+                with lock:
+                    item = next(queue, None)
+                if item is None:
+                    return
+                item.launch()
+
+        # the calling thread runs the first piece while the pool runs the others
+        futures = _submit(work, len(rest))
+        first.launch()
+        for f in futures:
+            f.result()
+
+
+class ElementState:
+    """The element pass at one set of positions: per-tet rotations, energies and volumes; per-node forces.
+
+    Attributes (Warp arrays): ``rotated`` (T,) mat33 rotated gradients ``Dm^-1 R^T``, ``energy`` (T,)
+    elastic energy, ``volume`` (T,) current signed volume, ``node_force``
+    (N,) vec3 elastic force, ``node_block`` (N,) mat33 diagonal block of
+    ``K'``; per corner (4 T,): ``corner_force`` and ``corner_block``.
+    """
+
+    def __init__(self, T: int, N: int, device):
+        self.rotated = wp.zeros(T, dtype=wp.mat33, device=device)
+        self.energy = wp.zeros(T, dtype=float, device=device)
+        self.volume = wp.zeros(T, dtype=float, device=device)
+        self.corner_force = wp.zeros(4 * T, dtype=wp.vec3, device=device)
+        self.corner_block = wp.zeros(4 * T, dtype=wp.vec4, device=device)
+        self.node_force = wp.zeros(N, dtype=wp.vec3, device=device)
+        self.node_block = wp.zeros(N, dtype=wp.mat33, device=device)
+
+    def compute(self, elements, x: wp.array, threads=None) -> None:
+        """Rotations, energies, volumes and node forces of ``elements`` at positions ``x``."""
+        e, dev = elements, elements.device
+        split_launch(k.rotate_elements_kernel, e.tet_count, [x, e.tets, e.dm_inv, e.volume, e.mu, e.lam],
+                     [self.rotated, self.corner_force, self.corner_block, self.energy, self.volume], dev, threads,
+                     TET_GRAIN)  # fmt: skip
+        split_launch(k.gather_elements_kernel, e.node_count,
+                     [e.node_offsets, e.node_corners, self.corner_force, self.corner_block],
+                     [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
+
+
+class ImplicitSolver:
+    """The filtered linear system of a step and its preconditioned CG, with buffers and launches reused across steps.
+
+    Args:
+        elements: the :class:`~warpblob.sim._elements.Elements`.
+        flags: (N,) uint8 node flags (:data:`~warpblob.sim._kernels.FREE`, ``FIXED``, ``INACTIVE``).
+        states: the two :class:`ElementState` buffers whose rotations the products use.
+        threads: CPU threads (None: the default).
+    """
+
+    def __init__(self, elements, flags: wp.array, states, threads=None):
+        self.elements = elements
+        self.flags = flags
+        self.threads = threads
+        e, dev = elements, elements.device
+        T, N = e.tet_count, e.node_count
+        self.rhs = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.prescribed = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.axes = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.ones = wp.full(N, wp.vec3(1.0, 1.0, 1.0), dtype=wp.vec3, device=dev)
+        self.inverse_block = wp.zeros(N, dtype=wp.mat33, device=dev)
+        self.corner_out = wp.zeros(4 * T, dtype=wp.vec3, device=dev)
+        self.r = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.z = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.p = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.Ap = wp.zeros(N, dtype=wp.vec3, device=dev)
+        blocks = max(1, -(-N // BLOCK_NODES))
+        if not dev.is_cuda:
+            blocks = min(blocks, MAX_BLOCKS)
+        self.partials = wp.zeros((5, blocks), dtype=float, device=dev)
+        th, P = threads, self.partials
+        elem = [e.tets, e.volume, e.mu, e.lam]
+        rows = [e.node_offsets, e.node_corners, self.corner_out, e.mass, self.axes]
+        # per state (its rotations) the tet products of the solution guess (x, set per solve) and of p
+        self._multiply = {
+            id(s): {
+                name: Prepared(k.multiply_elements_kernel, T, [vec, *elem, s.rotated, self.axes], [self.corner_out],
+                               dev, th, TET_GRAIN)  # fmt: skip
+                for name, vec in (("x", self.p), ("p", self.p))
+            }
+            for s in states
+        }
+        # a block kernel is split over threads from NODE_GRAIN nodes a piece, like the per-node kernels
+        grain = max(1, blocks * NODE_GRAIN // max(N, 1))
+        self._start = Prepared(k.start_cg_kernel, blocks, [*rows, self.inverse_block, self.rhs, self.p, 1.0, 0.0, N],
+                               [self.r, self.z, self.p, P], dev, th, grain)  # fmt: skip
+        self._product = Prepared(k.product_cg_kernel, blocks, [*rows, self.p, 1.0, 0.0, N], [self.Ap, P], dev, th,
+                                 grain)  # fmt: skip
+        self._update = [Prepared(k.update_cg_kernel, blocks, [self.inverse_block, self.p, self.Ap, parity, N],
+                                 [self.p, self.r, self.z, P], dev, th, grain) for parity in (0, 1)]  # fmt: skip
+        self._direction = [Prepared(k.direction_cg_kernel, blocks, [self.z, parity, N], [self.p, P], dev, th, grain)
+                           for parity in (0, 1)]  # fmt: skip
+        self._coefficients = None
+
+    def _set_coefficients(self, c_mass: float, c_stiff: float) -> None:
+        if self._coefficients != (c_mass, c_stiff):
+            # c_mass, c_stiff are parameters 8 and 9 of start_cg_kernel, 6 and 7 of product_cg_kernel
+            self._start.set(8, c_mass)
+            self._start.set(9, c_stiff)
+            self._product.set(6, c_mass)
+            self._product.set(7, c_stiff)
+            self._coefficients = (c_mass, c_stiff)
+
+    def multiply(self, state: ElementState, p: wp.array, out: wp.array, c_mass: float, c_stiff: float,
+                 project: int = 1, alpha: float = 1.0, beta: float = 0.0) -> None:  # fmt: skip
+        """``out = alpha A' p + beta out`` with ``A = c_mass M + c_stiff K'``: with ``project`` the filtered
+        ``A' = S A S + I - S`` of the last :meth:`assemble` (fixed rows identity), else ``A' = S A``."""
+        e, dev = self.elements, self.elements.device
+        split_launch(k.multiply_elements_kernel, e.tet_count,
+                     [p, e.tets, e.volume, e.mu, e.lam, state.rotated, self.axes if project else self.ones],
+                     [self.corner_out], dev, self.threads, TET_GRAIN)  # fmt: skip
+        split_launch(k.gather_products_kernel, e.node_count,
+                     [e.node_offsets, e.node_corners, self.corner_out, e.mass, self.axes, p, out,
+                      float(c_mass), float(c_stiff), float(alpha), float(beta), project],
+                     [out], dev, self.threads, NODE_GRAIN)  # fmt: skip
+
+    def assemble(self, state, x, v, target, external, gravity, h, c_mass, c_stiff, guess, *, ground=None,
+                 friction: float = 0.0, moving: bool = False) -> None:  # fmt: skip
+        """Free axes, prescribed velocities, right-hand side, warm start ``guess`` and preconditioner of the
+        filtered system ``c_mass M + c_stiff K'`` (:func:`~warpblob.sim._kernels.assemble_system_kernel`).
+
+        With ``moving`` (some fixed node has a target away from its position)
+        or a ``ground`` height (landing contacts, with Coulomb ``friction``), the coupling ``S A v_p`` of
+        the prescribed velocities is taken off the right-hand side by one
+        unfiltered product.
+        """
+        e, dev = self.elements, self.elements.device
+        split_launch(k.assemble_system_kernel, e.node_count,
+                     [x, v, e.mass, self.flags, target, state.node_force, state.node_block, external,
+                      wp.vec3(*gravity), float(h), float(c_mass), float(c_stiff), int(ground is not None),
+                      float(ground or 0.0), float(friction)],
+                     [self.rhs, guess, self.prescribed, self.axes, self.inverse_block], dev, self.threads,
+                     NODE_GRAIN)  # fmt: skip
+        if moving or ground is not None:
+            self.multiply(state, self.prescribed, self.rhs, c_mass, c_stiff, project=0, alpha=-1.0, beta=1.0)
+
+    def solve(self, state: ElementState, x: wp.array, c_mass: float, c_stiff: float, tolerance: float, atol: float,
+              max_iterations: int) -> tuple[int, float, float]:  # fmt: skip
+        """Preconditioned CG on the assembled system, in place on the warm start ``x``.
+
+        Stops when ``|r| <= max(tolerance |b|, atol)`` or after
+        ``max_iterations``. Returns (iterations, ``|r|``, ``|b|``).
+        """
+        self._set_coefficients(float(c_mass), float(c_stiff))
+        multiply = self._multiply[id(state)]
+        multiply["x"].set(0, x)
+        self._start.set(7, x)
+        for u in self._update:
+            u.set(6, x)
+        partials = self.partials.numpy() if not x.device.is_cuda else None
+        check_every = 1 if partials is not None else 8
+
+        def sums():
+            # host sync: the convergence check (on the CPU a view of the partials, no copy)
+            part = partials if partials is not None else self.partials.numpy()
+            return float(part[2].astype(np.float64).sum()), float(part[3].astype(np.float64).sum())
+
+        multiply["x"]()
+        self._start()
+        rr, bb = sums()
+        limit = max(tolerance * np.sqrt(bb), atol) ** 2
+        iterations = 0
+        while rr > limit and iterations < max_iterations:
+            parity = iterations & 1
+            multiply["p"]()
+            self._product()
+            self._update[parity]()
+            iterations += 1
+            if iterations % check_every == 0 or iterations == max_iterations:
+                rr, _ = sums()
+                if rr <= limit:
+                    break
+            self._direction[parity]()
+        rr, _ = sums()
+        return iterations, float(np.sqrt(rr)), float(np.sqrt(bb))
