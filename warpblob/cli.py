@@ -12,27 +12,13 @@ import numpy as np
 
 from . import __version__
 from ._errors import WarpblobError
+from .io._scene import USD_SUFFIXES, load_scene
 
 __all__ = ["main"]
 
 
-_USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 #: what the mesh writers write (a .usdz package is read, never written)
 _MESH_SUFFIXES = (".usda", ".usdc", ".usd")
-
-
-def _load(scene: str):
-    """A built-in scene by name, or a model from a USD file."""
-    from . import scenes
-
-    if scene in scenes.ALL:
-        return scenes.ALL[scene]()
-    if scene.lower().endswith(_USD_SUFFIXES) or os.path.sep in scene:
-        from .io.usd import load_model
-
-        return load_model(scene)
-    names = ", ".join(scenes.ALL)
-    raise WarpblobError(f"unknown scene {scene!r}; give a USD file or one of the built-in scenes: {names}")
 
 
 def _info(model) -> dict:
@@ -96,7 +82,7 @@ def _write_text(path: str, text: str) -> None:
 
 
 def cmd_info(args) -> int:
-    info = _info(_load(args.scene))
+    info = _info(load_scene(args.scene))
     if args.json:
         print(json.dumps(info, indent=2))
     else:
@@ -114,7 +100,7 @@ def cmd_field(args) -> int:
         points = np.load(args.points, allow_pickle=False)
     except (OSError, ValueError) as exc:
         raise WarpblobError(f"cannot read points from {args.points!r}: {exc}") from None
-    values = field(_load(args.scene), points, device=args.device)
+    values = field(load_scene(args.scene), points, device=args.device)
     tmp = out + ".tmp.npy"
     np.save(tmp, values)
     os.replace(tmp, out)
@@ -292,7 +278,7 @@ def cmd_polygonize(args) -> int:
     if args.png:
         outputs.append((args.png, "--png", (".png",)))
     _prepare_outputs(*outputs)
-    model = _load(args.scene)
+    model = load_scene(args.scene)
     mesh = polygonize(model, cellsize=args.cellsize, device=args.device, progress=True, relax=args.relax)
     try:
         save_mesh(mesh, args.out)
@@ -315,7 +301,7 @@ def cmd_tetrahedralize(args) -> int:
     from .tetrahedralize import tetrahedralize
 
     _prepare_outputs((args.out, "--out", _MESH_SUFFIXES))
-    model = _load(args.scene)
+    model = load_scene(args.scene)
     mesh = tetrahedralize(model, cellsize=args.cellsize, interior_cellsize=args.interior_cellsize, device=args.device, progress=True)
     try:
         mesh.to_usd(args.out)

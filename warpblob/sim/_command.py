@@ -41,7 +41,7 @@ def add_simulate_parser(subparsers):
 
 def run_simulate(args) -> int:
     """Run the ``simulate`` subcommand; returns the exit code (errors are raised as WarpblobError)."""
-    from ..cli import _load
+    from ..io._scene import load_scene
     from ..polygonize import polygonize
     from ..tetrahedralize import tetrahedralize
     from ._simulation import Simulation
@@ -53,7 +53,7 @@ def run_simulate(args) -> int:
     if args.every < 1:
         raise WarpblobError(f"--every must be a positive integer, got {args.every}")
     device = getattr(args, "device", None)
-    model = _load(args.scene)
+    model = load_scene(args.scene)
     volume = tetrahedralize(model, cellsize=args.cellsize, device=device)
     surface = polygonize(model, cellsize=args.surface_cellsize or args.cellsize / 2, device=device)
     fixed = None if args.fix_below is None else volume.nodes[:, 2] < args.fix_below
