@@ -57,7 +57,7 @@ def render_mesh(
             mesh.to_pyvista(), scalars="RGB", rgb=True, smooth_shading=True, ambient=0.4, diffuse=0.75, specular=0.15
         )
     plotter.view_vector(view, viewup=(0.0, 0.0, 1.0))
-    plotter.camera.zoom(1.2)
+    plotter.camera.zoom(1.0)  # larger crops box-filling models (the towers) at the corners
     image = plotter.screenshot(return_img=True)
     plotter.close()
 
