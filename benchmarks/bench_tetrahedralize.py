@@ -52,12 +52,6 @@ from warpblob.tetrahedralize import tetrahedralize
 THESIS_TETS_AT_0_1 = {"tumor": 130_000, "three_slabs": 120_000, "cake": 85_000}  # SPEC 3
 
 
-def implicit_volume(model, samples: int, seed: int = 0) -> float:
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in model.bounds())
-    pts = np.random.default_rng(seed).uniform(lo, hi, (samples, 3)).astype(np.float32)
-    return float(np.mean(wb.field(model, pts) >= 0.5) * np.prod(hi - lo))
-
-
 def positive(nodes: np.ndarray, tets: np.ndarray) -> TetMesh:
     p = nodes[tets]
     vol = np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]))
@@ -144,7 +138,7 @@ def main(argv=None):
     for name in args.models.split(","):
         model = wb.scenes.ALL[name]()
         lm = wb.linearize(model)
-        volume = implicit_volume(model, args.samples)
+        volume = wb.monte_carlo_volume(model, samples=args.samples).volume
         seconds, mesh = wall_time(lambda lm=lm: tetrahedralize(lm, cellsize=h), args.repeat)
         st = mesh.stats
         rows.append(

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 import warpblob as wb
-from warpblob.cli import _DEMO_CELLSIZE, _monte_carlo_volume
+from warpblob.cli import _DEMO_CELLSIZE
+from warpblob.field import monte_carlo_volume
 
 
 def run_cli(*args, cwd=None):
@@ -52,15 +53,15 @@ def test_demo_head_shells_match_pyvista(tmp_path):
 def test_monte_carlo_volume_of_a_sphere_and_its_error_bar():
     ball = wb.Point((0.0, 0.0, 0.0), 1.0)
     exact = 4.0 / 3.0 * np.pi * wb.ISO_DISTANCE**3
-    mc, _ = _monte_carlo_volume(ball, samples=400_000, rng=np.random.default_rng(1))
-    assert mc["samples"] == 400_000
-    assert abs(mc["volume"] - exact) < 3 * mc["standard_error"]
+    mc = monte_carlo_volume(ball, samples=400_000, rng=1)
+    assert mc.samples == 400_000
+    assert abs(mc.volume - exact) < 3 * mc.standard_error
     mesh = wb.polygonize(ball, cellsize=0.03)
-    assert abs(mesh.volume() - mc["volume"]) < 3 * mc["standard_error"]
+    assert abs(mesh.volume() - mc.volume) < 3 * mc.standard_error
     # the error bar is the spread of the estimate: 40 runs of 20,000 points
-    runs = [_monte_carlo_volume(ball, samples=20_000, rng=np.random.default_rng(s))[0] for s in range(40)]
-    spread = np.std([m["volume"] for m in runs], ddof=1)
-    assert 0.7 < spread / np.mean([m["standard_error"] for m in runs]) < 1.4
+    runs = [monte_carlo_volume(ball, samples=20_000, rng=s) for s in range(40)]
+    spread = np.std([m.volume for m in runs], ddof=1)
+    assert 0.7 < spread / np.mean([m.standard_error for m in runs]) < 1.4
 
 
 def test_demo_cell_size_resolves_the_head_layers():
@@ -70,8 +71,8 @@ def test_demo_cell_size_resolves_the_head_layers():
     mesh = wb.polygonize(model, cellsize=_DEMO_CELLSIZE["head"])
     assert mesh.is_closed_manifold()
     assert mesh.shell_count() == len(wb.scenes.HEAD_TISSUES)
-    mc, _ = _monte_carlo_volume(model, samples=1_000_000, rng=np.random.default_rng(2))
-    assert abs(mesh.volume() - mc["volume"]) < 3 * mc["standard_error"]
+    mc = monte_carlo_volume(model, samples=1_000_000, rng=2)
+    assert abs(mesh.volume() - mc.volume) < 3 * mc.standard_error
     # vertices on the cut planes (away from the rounded cut edges) carry exactly the four tissue colours
     v = mesh.vertices
     on_cut = (np.abs(v[:, 0]) < 1e-3) & (v[:, 1] < -0.2) & (v[:, 2] > 0.2)

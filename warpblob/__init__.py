@@ -20,7 +20,7 @@ from . import scenes  # noqa: E402
 from ._errors import MeshError, ModelError, ResourceError, SceneError, SimulationError, ToolError, WarpblobError
 from ._linearize import LinearModel, linearize
 from ._parallel import set_thread_count, thread_count
-from .field import color, evaluate, field, gradient
+from .field import VolumeEstimate, color, evaluate, field, gradient, monte_carlo_volume
 from . import mesh
 from .mesh import SurfaceMesh, TetMesh, TetQuality, TetStructure, quality
 from .polygonize import polygonize
@@ -106,6 +106,8 @@ __all__ = [
     "gradient",
     "color",
     "evaluate",
+    "monte_carlo_volume",
+    "VolumeEstimate",
     "polygonize",
     "tetrahedralize",
     "SurfaceMesh",

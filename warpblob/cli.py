@@ -127,54 +127,9 @@ def _demo_model(name: str):
     return scenes.ALL[name](), name, {}
 
 
-def _monte_carlo_volume(model, *, samples: int, rng: np.random.Generator, device=None) -> tuple[dict, float]:
-    """Monte Carlo estimate of the volume of ``model``, independent of any mesh.
-
-    ``samples`` points uniform in the model's box; the volume is the box's
-    volume ``B`` times the fraction ``p`` of points inside (``F >= 0.5``),
-    with standard error ``B sqrt(p (1 - p) / samples)``.
-
-    Args:
-        model: a BlobTree.
-        samples: number of points.
-        rng: where the points come from.
-        device: Warp device of the field evaluation.
-
-    Returns:
-        ``({"samples", "inside_fraction", "volume", "standard_error"}, seconds)``:
-        volumes in model units cubed, ``seconds`` the field evaluation's.
-
-    Example:
-        >>> import numpy as np, warpblob as wb
-        >>> from warpblob.cli import _monte_carlo_volume
-        >>> ball = wb.Point((0, 0, 0), 1.0)  # a sphere of radius ISO_DISTANCE
-        >>> mc, _ = _monte_carlo_volume(ball, samples=100_000, rng=np.random.default_rng(0))
-        >>> bool(abs(mc["volume"] - 4 / 3 * np.pi * wb.ISO_DISTANCE**3) < 4 * mc["standard_error"])
-        True
-    """
-    from ._linearize import linearize
-    from .field import field
-    from .tree import ISO_VALUE
-
-    lo, hi = (np.asarray(b, dtype=np.float64) for b in linearize(model).bounds)
-    box = float(np.prod(hi - lo))
-    points = rng.uniform(lo, hi, (samples, 3)).astype(np.float32)
-    field(model, points[:1000], device=device)  # compile and warm up outside the timing
-    t0 = time.perf_counter()
-    inside = field(model, points, device=device) >= ISO_VALUE
-    seconds = time.perf_counter() - t0
-    p = float(np.mean(inside))
-    estimate = {
-        "samples": samples,
-        "inside_fraction": p,
-        "volume": box * p,
-        "standard_error": box * float(np.sqrt(p * (1.0 - p) / samples)),
-    }
-    return estimate, seconds
-
-
 def cmd_demo(args) -> int:
     from . import scenes
+    from .field import monte_carlo_volume
     from ._progress import progress
     from ._render import render_mesh
     from ._slices import save_slices
@@ -190,10 +145,14 @@ def cmd_demo(args) -> int:
     for name in progress(names, desc="demo"):
         model, label, picture = _demo_model(name)
         info = {"model": label, **_info(model)}
-        estimate, seconds = _monte_carlo_volume(model, samples=args.samples, rng=rng, device=args.device)
-        info["points_per_second"] = round(args.samples / seconds)
-        info["inside_fraction"] = round(estimate.pop("inside_fraction"), 6)
-        info["volume_monte_carlo"] = {k: round(v, 6) for k, v in estimate.items()}
+        estimate = monte_carlo_volume(model, samples=args.samples, rng=rng, device=args.device)
+        info["points_per_second"] = round(args.samples / estimate.seconds)
+        info["inside_fraction"] = round(estimate.inside_fraction, 6)
+        info["volume_monte_carlo"] = {
+            "samples": estimate.samples,
+            "volume": round(estimate.volume, 6),
+            "standard_error": round(estimate.standard_error, 6),
+        }
         save_slices(model, os.path.join(args.out, f"{name}_slices.png"), name=name, resolution=args.resolution, device=args.device)
         h = args.cellsize or _DEMO_CELLSIZE.get(name, 0.05)
         t0 = time.perf_counter()
