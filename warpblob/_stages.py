@@ -79,12 +79,20 @@ def available_memory(device) -> int:
     return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
 
 
+def format_bytes(n: float) -> str:
+    """``n`` bytes in the largest binary unit that keeps it at 1 or more (``"512 B"``, ``"3.2 MiB"``)."""
+    for unit, size in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= size:
+            return f"{n / size:.1f} {unit}"
+    return f"{int(n)} B"
+
+
 def check_memory(who: str, stage: str, need: int, limit: int) -> None:
     """Raise :class:`ResourceError` with the estimate when ``need`` bytes exceed ``limit``."""
     if need > limit:
         raise ResourceError(
-            f"{who}: the {stage} stage needs an estimated {need / 2**20:.1f} MiB, "
-            f"more than the {limit / 2**20:.1f} MiB available; use a larger cellsize or smaller bounds"
+            f"{who}: the {stage} stage needs an estimated {format_bytes(need)}, "
+            f"more than the {format_bytes(limit)} available; use a larger cellsize or smaller bounds"
         )
 
 

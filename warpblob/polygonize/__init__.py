@@ -23,8 +23,10 @@ grid, each stage a Warp kernel with at most one host sync:
 5. Faces from a generated loop table, ambiguous faces resolved by the
    asymptotic decider (Nielson & Hamann, *The asymptotic decider*, IEEE
    Visualization 1991), loops fanned from the apex that maximizes the
-   smallest angle; zero-area triangles dropped after welding their
-   coincident corners, so the mesh stays closed.
+   smallest angle; then every edge shorter than 3% of a cell is contracted
+   where the link condition allows (Dey, Edelsbrunner, Guha & Nekhayev,
+   *Topology preserving edge contraction*, 1999), which removes the needles
+   the grid makes near its vertices and keeps the mesh a closed 2-manifold.
 6. Tangential relaxation of the vertices of triangles under 10 degrees,
    re-projected onto the surface by Newton steps along the gradient (the
    projection of Hartmann, *A marching method for the triangulation of

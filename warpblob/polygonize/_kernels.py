@@ -14,6 +14,8 @@ BLOCK = 8  # cells per block side
 CELLS = BLOCK * BLOCK * BLOCK
 assert CELLS == BLOCK_POINTS  # array-mode evaluation works on whole blocks
 MAX_LOOP = 12
+#: smallest piece of a CPU launch whose items each run a root search (microseconds each)
+HEAVY_CHUNK = 64
 
 _BLOCK = wp.constant(BLOCK)
 _CELLS = wp.constant(CELLS)
@@ -196,14 +198,212 @@ def inside(v: float, iso: float):
     return v >= iso
 
 
-def make_kernels():
-    """Build the polygonizer kernels (compiled once per process and device)."""
-    bound = make_evaluate(True, interval=True, cube=True)
-    value = make_evaluate(True)
-    value_only = make_evaluate(True, derivatives=False)
-    block_value = make_evaluate(True, derivatives=False, array=True)
-    block_bounds = make_evaluate(True, interval=True, array=True)
-    segment_root = make_segment_root(value)
+@wp.kernel(enable_backward=False)
+def count_kernel(
+    g: Grid,
+    iso: float,
+    active: wp.array(dtype=wp.int32),
+    samples: wp.array(dtype=wp.float32),
+    block_map: wp.array(dtype=wp.int32),
+    block_states: wp.array(dtype=wp.int32),
+    states: wp.array(dtype=wp.int32),
+    table: wp.array2d(dtype=wp.int32),
+    faces: wp.array(dtype=wp.vec4i),
+    offset: int,
+    edge_masks: wp.array(dtype=wp.int32),
+    vertex_counts: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=wp.int32),
+    triangle_counts: wp.array(dtype=wp.int32),
+    centre_counts: wp.array(dtype=wp.int32),
+):
+    """Per cell (and owned vertex) of the active blocks: its crossed edges
+    (+x, +y, +z from its lower corner, a 3-bit mask), the table entry of its
+    configuration and face decisions, and its triangle and centre counts."""
+    tid = wp.tid() + offset
+    a, c, lc = active_cell(g, active, tid)
+    i = lc[0]
+    j = lc[1]
+    k = lc[2]
+    gx = c[0] * _BLOCK + i
+    gy = c[1] * _BLOCK + j
+    gz = c[2] * _BLOCK + k
+    # crossed edges owned by vertex (i, j, k): +x, +y, +z, inside the grid
+    mask = int(0)
+    entry = int(0)
+    count = int(0)
+    centres = int(0)
+    # a cell of a proven sub-block has corners of one sign: nothing to count
+    proven = states[a * _SUBS + ((k // _SUB) * _SUB_SIDE + j // _SUB) * _SUB_SIDE + i // _SUB] != 0
+    if proven:
+        pass
+    elif gx < g.cells[0] and gy < g.cells[1] and gz < g.cells[2]:
+        # a cell of the grid: its corners give the owned edges (corner 0 to 1, 2, 4) and its configuration
+        vals = vec8()
+        config = int(0)
+        for n in range(8):
+            v = sample_at(g, a, c, i + (n & 1), j + ((n >> 1) & 1), k + ((n >> 2) & 1), iso, samples, block_map, block_states) - iso
+            vals[n] = v
+            if v >= 0.0:
+                config = config | (1 << n)
+        b0 = config & 1
+        mask = (((config >> 1) & 1) ^ b0) | ((((config >> 2) & 1) ^ b0) << 1) | ((((config >> 4) & 1) ^ b0) << 2)
+        bits = int(0)
+        for f in range(6):
+            q = faces[f]
+            v0 = vals[q[0]]
+            v1 = vals[q[1]]
+            v2 = vals[q[2]]
+            v3 = vals[q[3]]
+            if (v0 >= 0.0) == (v2 >= 0.0) and (v1 >= 0.0) == (v3 >= 0.0) and (v0 >= 0.0) != (v1 >= 0.0):
+                # asymptotic decider: the inside pair is joined when the bilinear
+                # saddle is inside, i.e. its product is at least the outside pair's
+                p_in = v0 * v2
+                p_out = v1 * v3
+                if v1 >= 0.0:
+                    p_in = v1 * v3
+                    p_out = v0 * v2
+                if p_in >= p_out:
+                    bits = bits | (1 << f)
+        entry = config * 64 + bits
+        for lp in range(table[entry, 1]):
+            n = table[entry, 2 + lp]
+            if table[entry, _APEX + lp] != 0:
+                count += n - 2
+            else:
+                count += n
+                centres += 1
+    elif gx <= g.cells[0] and gy <= g.cells[1] and gz <= g.cells[2]:
+        # a vertex on the grid's upper faces: its edges along them
+        s0 = inside(sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states), iso)
+        if gx < g.cells[0] and inside(sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states), iso) != s0:
+            mask = mask | 1
+        if gy < g.cells[1] and inside(sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states), iso) != s0:
+            mask = mask | 2
+        if gz < g.cells[2] and inside(sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states), iso) != s0:
+            mask = mask | 4
+    edge_masks[tid] = mask
+    vertex_counts[tid] = (mask & 1) + ((mask >> 1) & 1) + ((mask >> 2) & 1)
+    entries[tid] = entry
+    triangle_counts[tid] = count
+    centre_counts[tid] = centres
+
+
+@wp.func
+def edge_vertex(
+    g: Grid,
+    b: wp.vec3i,
+    li: int,
+    lj: int,
+    lk: int,
+    axis: int,
+    block_map: wp.array(dtype=wp.int32),
+    edge_masks: wp.array(dtype=wp.int32),
+    vertex_offsets: wp.array(dtype=wp.int32),
+):
+    """Index of the vertex on the edge owned by block-local vertex (li, lj, lk)."""
+    gx = b[0] * _BLOCK + li
+    gy = b[1] * _BLOCK + lj
+    gz = b[2] * _BLOCK + lk
+    bx = gx // _BLOCK
+    by = gy // _BLOCK
+    bz = gz // _BLOCK
+    a = block_map[(bz * g.blocks[1] + by) * g.blocks[0] + bx]
+    o = a * _CELLS + ((gz - bz * _BLOCK) * _BLOCK + (gy - by * _BLOCK)) * _BLOCK + (gx - bx * _BLOCK)
+    mask = edge_masks[o]
+    below = mask & ((1 << axis) - 1)
+    return vertex_offsets[o] + (below & 1) + ((below >> 1) & 1)
+
+
+@wp.func
+def loop_ids(
+    g: Grid,
+    b: wp.vec3i,
+    i: int,
+    j: int,
+    k: int,
+    table: wp.array2d(dtype=wp.int32),
+    entry: int,
+    first: int,
+    n: int,
+    edge_info: wp.array(dtype=wp.vec4i),
+    block_map: wp.array(dtype=wp.int32),
+    edge_masks: wp.array(dtype=wp.int32),
+    vertex_offsets: wp.array(dtype=wp.int32),
+):
+    """Vertex indices of one loop of cell (i, j, k) of block ``b``."""
+    ids = vec12i()
+    for t in range(n):
+        e = edge_info[table[entry, 6 + first + t]]
+        ids[t] = edge_vertex(g, b, i + e[0], j + e[1], k + e[2], e[3], block_map, edge_masks, vertex_offsets)
+    return ids
+
+
+@wp.kernel(enable_backward=False)
+def face_kernel(
+    g: Grid,
+    active: wp.array(dtype=wp.int32),
+    block_map: wp.array(dtype=wp.int32),
+    entries: wp.array(dtype=wp.int32),
+    triangle_counts: wp.array(dtype=wp.int32),
+    triangle_offsets: wp.array(dtype=wp.int32),
+    centre_offsets: wp.array(dtype=wp.int32),
+    first_centre: int,
+    table: wp.array2d(dtype=wp.int32),
+    edge_info: wp.array(dtype=wp.vec4i),
+    edge_masks: wp.array(dtype=wp.int32),
+    vertex_offsets: wp.array(dtype=wp.int32),
+    positions: wp.array(dtype=wp.vec3),
+    offset: int,
+    triangles: wp.array(dtype=wp.vec3i),
+):
+    """The triangles of each cell's loops: fanned from the allowed apex that
+    maximizes the smallest angle, or around the loop's centre vertex."""
+    tid = wp.tid() + offset
+    if triangle_counts[tid] == 0:
+        return
+    a, b, lc = active_cell(g, active, tid)
+    i = lc[0]
+    j = lc[1]
+    k = lc[2]
+    entry = entries[tid]
+    out = triangle_offsets[tid]
+    centre = first_centre + centre_offsets[tid]
+    first = int(0)
+    for lp in range(table[entry, 1]):
+        n = table[entry, 2 + lp]
+        apexes = table[entry, _APEX + lp]
+        ids = loop_ids(g, b, i, j, k, table, entry, first, n, edge_info, block_map, edge_masks, vertex_offsets)
+        if apexes == 0:
+            for t in range(n):
+                triangles[out] = wp.vec3i(ids[t], ids[(t + 1) % n], centre)
+                out += 1
+            centre += 1
+        else:
+            # fan from the allowed apex that maximizes the smallest angle
+            # (minimizes the largest smallest-angle cosine)
+            apex = int(-1)
+            best = float(2.0)
+            for s in range(n):
+                if (apexes >> s) & 1 != 0:
+                    worst = float(-2.0)
+                    for t in range(1, n - 1):
+                        c = smallest_angle_cosine(
+                            positions[ids[s]], positions[ids[(s + t) % n]], positions[ids[(s + t + 1) % n]]
+                        )
+                        worst = wp.max(worst, c)
+                    if worst < best or apex < 0:
+                        best = worst
+                        apex = s
+            for t in range(1, n - 1):
+                triangles[out] = wp.vec3i(ids[apex], ids[(apex + t) % n], ids[(apex + t + 1) % n])
+                out += 1
+        first += n
+
+
+def make_project(value):
+    """Newton steps along the gradient onto the surface, with the point-mode
+    traversal ``value`` (:func:`make_evaluate` with derivatives): used by the
+    loop centres and by relaxation."""
 
     @wp.func(inline=True)
     def project(m: ModelArrays, x0: wp.vec3, iso: float, tolerance: float, max_iterations: int, max_step: float):
@@ -233,6 +433,14 @@ def make_kernels():
                 step = step * (max_step / length)
             x = x + step
         return r, at, count, ok
+
+    return project
+
+
+def make_classify_kernels(bound, block_bounds) -> dict:
+    """Block and sub-block rejection by interval bounds: point by point with
+    the cube bound ``bound``, or a whole block at a time with the bounds rows
+    ``block_bounds`` (array mode)."""
 
     @wp.kernel(enable_backward=False, module="unique")
     def classify_blocks_kernel(
@@ -331,6 +539,18 @@ def make_kernels():
         for sb in range(_SUBS):
             states[a * _SUBS + sb] = proven_side(sub_bounds(ctx, r, sb), iso)
 
+    return {
+        "classify": classify_blocks_kernel,
+        "classify_rows": classify_block_rows_kernel,
+        "classify_sub": classify_subblocks_kernel,
+        "classify_sub_rows": classify_subblock_rows_kernel,
+    }
+
+
+def make_sample_kernels(value_only, block_value) -> dict:
+    """Grid samples of the active blocks: point by point with ``value_only``, or
+    one tree walk per block with the array-mode ``block_value``."""
+
     @wp.kernel(enable_backward=False, module="unique")
     def sample_blocks_kernel(
         m: ModelArrays,
@@ -394,91 +614,13 @@ def make_kernels():
             if rows[want + l] != 0.0:
                 samples[a * _CELLS + l] = block_result(ctx, r, l)
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def count_kernel(
-        g: Grid,
-        iso: float,
-        active: wp.array(dtype=wp.int32),
-        samples: wp.array(dtype=wp.float32),
-        block_map: wp.array(dtype=wp.int32),
-        block_states: wp.array(dtype=wp.int32),
-        states: wp.array(dtype=wp.int32),
-        table: wp.array2d(dtype=wp.int32),
-        faces: wp.array(dtype=wp.vec4i),
-        offset: int,
-        edge_masks: wp.array(dtype=wp.int32),
-        vertex_counts: wp.array(dtype=wp.int32),
-        entries: wp.array(dtype=wp.int32),
-        triangle_counts: wp.array(dtype=wp.int32),
-        centre_counts: wp.array(dtype=wp.int32),
-    ):
-        tid = wp.tid() + offset
-        a, c, lc = active_cell(g, active, tid)
-        i = lc[0]
-        j = lc[1]
-        k = lc[2]
-        gx = c[0] * _BLOCK + i
-        gy = c[1] * _BLOCK + j
-        gz = c[2] * _BLOCK + k
-        # crossed edges owned by vertex (i, j, k): +x, +y, +z, inside the grid
-        mask = int(0)
-        entry = int(0)
-        count = int(0)
-        centres = int(0)
-        # a cell of a proven sub-block has corners of one sign: nothing to count
-        proven = states[a * _SUBS + ((k // _SUB) * _SUB_SIDE + j // _SUB) * _SUB_SIDE + i // _SUB] != 0
-        if proven:
-            pass
-        elif gx < g.cells[0] and gy < g.cells[1] and gz < g.cells[2]:
-            # a cell of the grid: its corners give the owned edges (corner 0 to 1, 2, 4) and its configuration
-            vals = vec8()
-            config = int(0)
-            for n in range(8):
-                v = sample_at(g, a, c, i + (n & 1), j + ((n >> 1) & 1), k + ((n >> 2) & 1), iso, samples, block_map, block_states) - iso
-                vals[n] = v
-                if v >= 0.0:
-                    config = config | (1 << n)
-            b0 = config & 1
-            mask = (((config >> 1) & 1) ^ b0) | ((((config >> 2) & 1) ^ b0) << 1) | ((((config >> 4) & 1) ^ b0) << 2)
-            bits = int(0)
-            for f in range(6):
-                q = faces[f]
-                v0 = vals[q[0]]
-                v1 = vals[q[1]]
-                v2 = vals[q[2]]
-                v3 = vals[q[3]]
-                if (v0 >= 0.0) == (v2 >= 0.0) and (v1 >= 0.0) == (v3 >= 0.0) and (v0 >= 0.0) != (v1 >= 0.0):
-                    # asymptotic decider: the inside pair is joined when the bilinear
-                    # saddle is inside, i.e. its product is at least the outside pair's
-                    p_in = v0 * v2
-                    p_out = v1 * v3
-                    if v1 >= 0.0:
-                        p_in = v1 * v3
-                        p_out = v0 * v2
-                    if p_in >= p_out:
-                        bits = bits | (1 << f)
-            entry = config * 64 + bits
-            for lp in range(table[entry, 1]):
-                n = table[entry, 2 + lp]
-                if table[entry, _APEX + lp] != 0:
-                    count += n - 2
-                else:
-                    count += n
-                    centres += 1
-        elif gx <= g.cells[0] and gy <= g.cells[1] and gz <= g.cells[2]:
-            # a vertex on the grid's upper faces: its edges along them
-            s0 = inside(sample_at(g, a, c, i, j, k, iso, samples, block_map, block_states), iso)
-            if gx < g.cells[0] and inside(sample_at(g, a, c, i + 1, j, k, iso, samples, block_map, block_states), iso) != s0:
-                mask = mask | 1
-            if gy < g.cells[1] and inside(sample_at(g, a, c, i, j + 1, k, iso, samples, block_map, block_states), iso) != s0:
-                mask = mask | 2
-            if gz < g.cells[2] and inside(sample_at(g, a, c, i, j, k + 1, iso, samples, block_map, block_states), iso) != s0:
-                mask = mask | 4
-        edge_masks[tid] = mask
-        vertex_counts[tid] = (mask & 1) + ((mask >> 1) & 1) + ((mask >> 2) & 1)
-        entries[tid] = entry
-        triangle_counts[tid] = count
-        centre_counts[tid] = centres
+    return {"sample": sample_blocks_kernel, "sample_rows": sample_rows_kernel}
+
+
+def make_vertex_kernels(value, project) -> dict:
+    """The surface vertices: one per crossed edge (the root search of
+    :func:`make_segment_root` over ``value``) and one per loop centre (``project``)."""
+    segment_root = make_segment_root(value)
 
     @wp.kernel(enable_backward=False, module="unique")
     def edge_vertex_kernel(
@@ -527,54 +669,6 @@ def make_kernels():
         r, t, count = segment_root(m, p0, step, f0, f1, t0, iso, tolerance, max_iterations)
         store_vertex(tid, p0 + t * step, r, count, positions, normals, colors, evaluations)
 
-    @wp.func
-    def edge_vertex(
-        g: Grid,
-        b: wp.vec3i,
-        li: int,
-        lj: int,
-        lk: int,
-        axis: int,
-        block_map: wp.array(dtype=wp.int32),
-        edge_masks: wp.array(dtype=wp.int32),
-        vertex_offsets: wp.array(dtype=wp.int32),
-    ):
-        """Index of the vertex on the edge owned by block-local vertex (li, lj, lk)."""
-        gx = b[0] * _BLOCK + li
-        gy = b[1] * _BLOCK + lj
-        gz = b[2] * _BLOCK + lk
-        bx = gx // _BLOCK
-        by = gy // _BLOCK
-        bz = gz // _BLOCK
-        a = block_map[(bz * g.blocks[1] + by) * g.blocks[0] + bx]
-        o = a * _CELLS + ((gz - bz * _BLOCK) * _BLOCK + (gy - by * _BLOCK)) * _BLOCK + (gx - bx * _BLOCK)
-        mask = edge_masks[o]
-        below = mask & ((1 << axis) - 1)
-        return vertex_offsets[o] + (below & 1) + ((below >> 1) & 1)
-
-    @wp.func
-    def loop_ids(
-        g: Grid,
-        b: wp.vec3i,
-        i: int,
-        j: int,
-        k: int,
-        table: wp.array2d(dtype=wp.int32),
-        entry: int,
-        first: int,
-        n: int,
-        edge_info: wp.array(dtype=wp.vec4i),
-        block_map: wp.array(dtype=wp.int32),
-        edge_masks: wp.array(dtype=wp.int32),
-        vertex_offsets: wp.array(dtype=wp.int32),
-    ):
-        """Vertex indices of one loop of cell (i, j, k) of block ``b``."""
-        ids = vec12i()
-        for t in range(n):
-            e = edge_info[table[entry, 6 + first + t]]
-            ids[t] = edge_vertex(g, b, i + e[0], j + e[1], k + e[2], e[3], block_map, edge_masks, vertex_offsets)
-        return ids
-
     @wp.kernel(enable_backward=False, module="unique")
     def centre_kernel(
         m: ModelArrays,
@@ -622,337 +716,25 @@ def make_kernels():
                 out += 1
             first += n
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def face_kernel(
-        g: Grid,
-        active: wp.array(dtype=wp.int32),
-        block_map: wp.array(dtype=wp.int32),
-        entries: wp.array(dtype=wp.int32),
-        triangle_counts: wp.array(dtype=wp.int32),
-        triangle_offsets: wp.array(dtype=wp.int32),
-        centre_offsets: wp.array(dtype=wp.int32),
-        first_centre: int,
-        table: wp.array2d(dtype=wp.int32),
-        edge_info: wp.array(dtype=wp.vec4i),
-        edge_masks: wp.array(dtype=wp.int32),
-        vertex_offsets: wp.array(dtype=wp.int32),
-        positions: wp.array(dtype=wp.vec3),
-        offset: int,
-        triangles: wp.array(dtype=wp.vec3i),
-    ):
-        tid = wp.tid() + offset
-        if triangle_counts[tid] == 0:
-            return
-        a, b, lc = active_cell(g, active, tid)
-        i = lc[0]
-        j = lc[1]
-        k = lc[2]
-        entry = entries[tid]
-        out = triangle_offsets[tid]
-        centre = first_centre + centre_offsets[tid]
-        first = int(0)
-        for lp in range(table[entry, 1]):
-            n = table[entry, 2 + lp]
-            apexes = table[entry, _APEX + lp]
-            ids = loop_ids(g, b, i, j, k, table, entry, first, n, edge_info, block_map, edge_masks, vertex_offsets)
-            if apexes == 0:
-                for t in range(n):
-                    triangles[out] = wp.vec3i(ids[t], ids[(t + 1) % n], centre)
-                    out += 1
-                centre += 1
-            else:
-                # fan from the allowed apex that maximizes the smallest angle
-                # (minimizes the largest smallest-angle cosine)
-                apex = int(-1)
-                best = float(2.0)
-                for s in range(n):
-                    if (apexes >> s) & 1 != 0:
-                        worst = float(-2.0)
-                        for t in range(1, n - 1):
-                            c = smallest_angle_cosine(
-                                positions[ids[s]], positions[ids[(s + t) % n]], positions[ids[(s + t + 1) % n]]
-                            )
-                            worst = wp.max(worst, c)
-                        if worst < best or apex < 0:
-                            best = worst
-                            apex = s
-                for t in range(1, n - 1):
-                    triangles[out] = wp.vec3i(ids[apex], ids[(apex + t) % n], ids[(apex + t + 1) % n])
-                    out += 1
-            first += n
+    return {"edge_vertex": edge_vertex_kernel, "centre": centre_kernel}
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def relax_kernel(
-        m: ModelArrays,
-        iso: float,
-        tolerance: float,
-        amount: float,
-        reach: float,
-        positions: wp.array(dtype=wp.vec3),
-        normals: wp.array(dtype=wp.vec3),
-        triangles: wp.array(dtype=wp.vec3i),
-        corner_vertex: wp.array(dtype=wp.int32),
-        corner_triangle: wp.array(dtype=wp.int32),
-        n_corners: int,
-        offset: int,
-        new_positions: wp.array(dtype=wp.vec3),
-        new_normals: wp.array(dtype=wp.vec3),
-        new_colors: wp.array(dtype=wp.vec3),
-        moved: wp.array(dtype=wp.int32),
-        evaluations: wp.array(dtype=wp.int32),
-    ):
-        """Move one vertex of a skinny triangle ``amount`` of the way to the
-        centroid of its neighbours, within its tangent plane, then back onto
-        the surface by Newton steps along the gradient until ``|F - iso| <=
-        tolerance`` (the vertex stays where it was if they do not get there,
-        or wander farther than ``reach``). The corners are sorted by vertex;
-        the thread of a vertex's first corner does the work, the others stop."""
-        tid = wp.tid() + offset
-        evaluations[tid] = 0
-        v = corner_vertex[tid]
-        if tid > 0:
-            if corner_vertex[tid - 1] == v:
-                return
-        first = tid
-        last = tid + 1
-        while last < n_corners:
-            if corner_vertex[last] != v:
-                break
-            last += 1
-        x0 = positions[v]
-        n = normals[v]
-        acc = wp.vec3(0.0)
-        rise = float(0.0)
-        spread = float(0.0)
-        for q in range(first, last):
-            t = triangles[corner_triangle[q]]
-            for c in range(3):
-                e = positions[t[c]] - x0
-                en = wp.dot(e, n)
-                acc = acc + e
-                rise += en
-                spread += wp.dot(e, e) - en * en
-        centroid = x0 + acc / (2.0 * float(last - first))
-        d = centroid - x0
-        step = amount * (d - wp.dot(d, n) * n)
-        # the neighbours' mean height over the tangent plane, ~ kappa s^2 / 2, predicts
-        # where the surface is at the moved point (one Newton step fewer, usually)
-        bend = float(0.0)
-        if spread > 0.0:
-            bend = rise / spread * wp.dot(step, step)
-        r, x, count, ok = project(m, x0 + step + bend * n, iso, tolerance, 8, 0.5 * reach)
-        if ok and wp.length(x - x0) <= reach:
-            new_positions[v] = x
-            new_normals[v] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
-            new_colors[v] = wp.vec3(r[4], r[5], r[6])
-            moved[v] = 1
-        evaluations[tid] = count
 
-    @wp.kernel(enable_backward=False, module="unique")
-    def degenerate_kernel(
-        positions: wp.array(dtype=wp.vec3),
-        triangles: wp.array(dtype=wp.vec3i),
-        offset: int,
-        keep: wp.array(dtype=wp.int32),
-    ):
-        """Keep a triangle with three distinct corners and a nonzero area."""
-        tid = wp.tid() + offset
-        t = triangles[tid]
-        p0 = positions[t[0]]
-        n = wp.cross(positions[t[1]] - p0, positions[t[2]] - p0)
-        distinct = t[0] != t[1] and t[1] != t[2] and t[0] != t[2]
-        keep[tid] = wp.where(distinct and wp.length_sq(n) > 0.0, 1, 0)
-
+def make_kernels() -> dict:
+    """Build the polygonizer kernels that close over the field evaluators
+    (compiled once per process and device), by name; relaxation's is
+    :func:`warpblob.polygonize._relax.make_relax_kernel`."""
+    value = make_evaluate(True)
     return {
-        "classify": classify_blocks_kernel,
-        "classify_rows": classify_block_rows_kernel,
-        "classify_sub": classify_subblocks_kernel,
-        "classify_sub_rows": classify_subblock_rows_kernel,
-        "sample": sample_blocks_kernel,
-        "sample_rows": sample_rows_kernel,
-        "count": count_kernel,
-        "edge_vertex": edge_vertex_kernel,
-        "centre": centre_kernel,
-        "face": face_kernel,
-        "degenerate": degenerate_kernel,
-        "relax": relax_kernel,
+        **make_classify_kernels(make_evaluate(True, interval=True, cube=True), make_evaluate(True, interval=True, array=True)),
+        **make_sample_kernels(make_evaluate(True, derivatives=False), make_evaluate(True, derivatives=False, array=True)),
+        **make_vertex_kernels(value, make_project(value)),
     }
-
-
-@wp.kernel(enable_backward=False)
-def compact_triangles_kernel(
-    triangles: wp.array(dtype=wp.vec3i),
-    keep: wp.array(dtype=wp.int32),
-    scanned: wp.array(dtype=wp.int32),
-    offset: int,
-    out: wp.array(dtype=wp.vec3i),
-):
-    tid = wp.tid() + offset
-    if keep[tid] != 0:
-        out[scanned[tid]] = triangles[tid]
 
 
 @wp.kernel(enable_backward=False)
 def block_map_kernel(active: wp.array(dtype=wp.int32), offset: int, block_map: wp.array(dtype=wp.int32)):
     tid = wp.tid() + offset
     block_map[active[tid]] = tid
-
-
-@wp.kernel(enable_backward=False)
-def dropped_kernel(keep: wp.array(dtype=wp.int32), offset: int, flags: wp.array(dtype=wp.int32)):
-    tid = wp.tid() + offset
-    flags[tid] = 1 - keep[tid]
-
-
-@wp.kernel(enable_backward=False)
-def remap_triangles_kernel(
-    triangles: wp.array(dtype=wp.vec3i), index: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
-):
-    """Replace each corner ``v`` by ``index[v]`` (welding, renumbering)."""
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    out[tid] = wp.vec3i(index[t[0]], index[t[1]], index[t[2]])
-
-
-@wp.kernel(enable_backward=False)
-def used_vertices_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, used: wp.array(dtype=wp.int32)):
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    used[t[0]] = 1
-    used[t[1]] = 1
-    used[t[2]] = 1
-
-
-@wp.kernel(enable_backward=False)
-def gather_vertices_kernel(
-    kept: wp.array(dtype=wp.int32),
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    colors: wp.array(dtype=wp.vec3),
-    offset: int,
-    out_positions: wp.array(dtype=wp.vec3),
-    out_normals: wp.array(dtype=wp.vec3),
-    out_colors: wp.array(dtype=wp.vec3),
-):
-    tid = wp.tid() + offset
-    v = kept[tid]
-    out_positions[tid] = positions[v]
-    out_normals[tid] = normals[v]
-    out_colors[tid] = colors[v]
-
-
-@wp.kernel(enable_backward=False)
-def skinny_vertices_kernel(
-    positions: wp.array(dtype=wp.vec3),
-    triangles: wp.array(dtype=wp.vec3i),
-    cos_limit: float,
-    offset: int,
-    flags: wp.array(dtype=wp.int32),
-):
-    """Flag the two ends of the shortest edge of each triangle whose smallest
-    angle is under acos(cos_limit) (every writer stores 1, so concurrent
-    writes agree)."""
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    p0 = positions[t[0]]
-    p1 = positions[t[1]]
-    p2 = positions[t[2]]
-    if smallest_angle_cosine(p0, p1, p2) > cos_limit:
-        # the ends of its shortest edge: pulling them apart mends a needle, and
-        # moves fewer vertices than taking all three (towers h = 0.14: 20,226 -> 14,949)
-        l0 = wp.length_sq(p1 - p0)
-        l1 = wp.length_sq(p2 - p1)
-        l2 = wp.length_sq(p0 - p2)
-        if l0 <= l1 and l0 <= l2:
-            flags[t[0]] = 1
-            flags[t[1]] = 1
-        elif l1 <= l2:
-            flags[t[1]] = 1
-            flags[t[2]] = 1
-        else:
-            flags[t[2]] = 1
-            flags[t[0]] = 1
-
-
-@wp.kernel(enable_backward=False)
-def flagged_corners_kernel(
-    triangles: wp.array(dtype=wp.vec3i), flags: wp.array(dtype=wp.int32), offset: int, counts: wp.array(dtype=wp.int32)
-):
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    counts[tid] = flags[t[0]] + flags[t[1]] + flags[t[2]]
-
-
-@wp.kernel(enable_backward=False)
-def emit_corners_kernel(
-    triangles: wp.array(dtype=wp.vec3i),
-    flags: wp.array(dtype=wp.int32),
-    offsets: wp.array(dtype=wp.int32),
-    offset: int,
-    corner_vertex: wp.array(dtype=wp.int32),
-    corner_triangle: wp.array(dtype=wp.int32),
-):
-    """(vertex, triangle) of each corner at a flagged vertex, in triangle order."""
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    o = offsets[tid]
-    for c in range(3):
-        if flags[t[c]] != 0:
-            corner_vertex[o] = t[c]
-            corner_triangle[o] = tid
-            o += 1
-
-
-@wp.kernel(enable_backward=False)
-def flipped_kernel(
-    old_positions: wp.array(dtype=wp.vec3),
-    new_positions: wp.array(dtype=wp.vec3),
-    triangles: wp.array(dtype=wp.vec3i),
-    moved: wp.array(dtype=wp.int32),
-    cos_floor: float,
-    offset: int,
-    revert: wp.array(dtype=wp.int32),
-):
-    """Flag for reverting the moved corners of a triangle the moves turned over
-    (normal against the old one), collapsed, or left with a smaller smallest
-    angle than ``acos(cos_floor)`` when it had a larger one."""
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    if moved[t[0]] + moved[t[1]] + moved[t[2]] == 0:
-        return
-    a = old_positions[t[0]]
-    b = old_positions[t[1]]
-    c = old_positions[t[2]]
-    a1 = new_positions[t[0]]
-    b1 = new_positions[t[1]]
-    c1 = new_positions[t[2]]
-    n0 = wp.cross(b - a, c - a)
-    n1 = wp.cross(b1 - a1, c1 - a1)
-    worse = smallest_angle_cosine(a1, b1, c1) > wp.max(cos_floor, smallest_angle_cosine(a, b, c))
-    if wp.dot(n0, n1) <= 0.0 or wp.length_sq(n1) == 0.0 or worse:
-        for k in range(3):
-            if moved[t[k]] != 0:
-                revert[t[k]] = 1
-
-
-@wp.kernel(enable_backward=False)
-def revert_kernel(
-    revert: wp.array(dtype=wp.int32),
-    old_positions: wp.array(dtype=wp.vec3),
-    old_normals: wp.array(dtype=wp.vec3),
-    old_colors: wp.array(dtype=wp.vec3),
-    offset: int,
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    colors: wp.array(dtype=wp.vec3),
-    moved: wp.array(dtype=wp.int32),
-):
-    tid = wp.tid() + offset
-    if revert[tid] != 0:
-        positions[tid] = old_positions[tid]
-        normals[tid] = old_normals[tid]
-        colors[tid] = old_colors[tid]
-        moved[tid] = 0
 
 
 @wp.kernel(enable_backward=False)

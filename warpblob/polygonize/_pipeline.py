@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import warp as wp
 
 from .._errors import ResourceError, WarpblobError
-from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan, scans
-from .._stages import compact_kernel
+from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scans
 from .._linearize import linearize
-from .._parallel import launch
+from .._parallel import check_threads, launch
 from .._device import resolve_device
 from ..field._engine import block_chunk, launch_blocks, model_arrays
 from ..mesh import SurfaceMesh
 from ..tree import ISO_VALUE
-from . import _kernels, _tables
+from . import _kernels, _relax, _tables, _weld
 
 __all__ = ["polygonize", "available_memory"]
 
@@ -23,10 +24,6 @@ _CACHE: dict = {}
 #: (array mode: the traversal cost is shared, best for CPU threads), "points"
 #: once per vertex (one GPU thread each), "auto" picks by device
 SAMPLING = "auto"
-#: smallest piece of a CPU launch whose items each run a root search (microseconds each)
-HEAVY_CHUNK = 64
-#: corners of a zero-area triangle closer than WELD cells are welded
-WELD = 1.0e-4
 
 
 def _use_rows(device) -> bool:
@@ -37,7 +34,7 @@ def _use_rows(device) -> bool:
 
 def _kernel_set():
     if "kernels" not in _CACHE:
-        _CACHE["kernels"] = _kernels.make_kernels()
+        _CACHE["kernels"] = {**_kernels.make_kernels(), "relax": _relax.make_relax_kernel()}
     return _CACHE["kernels"]
 
 
@@ -108,14 +105,19 @@ def polygonize(
 
     Args:
         model: a model or its :class:`~warpblob.LinearModel`.
-        cellsize: grid spacing, model units, > 0.
-        bounds: ``(lower, upper)`` box to polygonize (default: the model's box
+        cellsize: grid spacing, model units, finite and > 0.
+        bounds: ``(lower, upper)`` box to polygonize, two finite (3,)
+            points with upper > lower on every axis (default: the model's box
             plus half a cell, which closes the surface).
         device: Warp device (default: Warp's default device).
-        iso: iso-value (default 0.5).
-        tolerance: largest ``|F(v) - iso|`` accepted for a vertex.
-        max_memory: bytes the call may allocate (default: what is available).
-        threads: CPU threads (default: all cores).
+        iso: iso-value (default 0.5), finite and > 0: the field is 0 outside
+            the model's box, so at 0 or below all of space would be inside.
+            A Wyvill primitive's field is at most 1, but blends sum, so there
+            is no fixed upper limit; see Warns.
+        tolerance: largest ``|F(v) - iso|`` accepted for a vertex, > 0 and
+            below ``iso``.
+        max_memory: bytes the call may allocate, > 0 (default: what is available).
+        threads: CPU threads, a positive integer (default: all cores).
         progress: show a bar of the stages on a terminal (``None``: for
             grids of 8 million cells and more, jobs of seconds).
         relax: improve the triangles with a smallest angle under 10 degrees:
@@ -133,8 +135,15 @@ def polygonize(
         ``blocks_rejected``, ``seconds`` per stage and ``fvept``.
 
     Raises:
-        WarpblobError: bad arguments. ResourceError: the estimated memory
-            exceeds ``max_memory``.
+        WarpblobError: bad arguments, named with the value received.
+        ResourceError: the estimated memory exceeds ``max_memory``.
+
+    Warns:
+        UserWarning: ``cellsize`` is larger than the smallest side of the
+            model's box (the mesh is empty or far coarser than the model), or,
+            with the default bounds, the mesh is empty: ``iso`` is above the
+            field's upper bound over every block of the box, or no grid edge
+            crosses the level (the surface is smaller than a cell).
 
     Example:
         >>> import warpblob as wb
@@ -142,33 +151,78 @@ def polygonize(
         >>> mesh.is_closed_manifold()
         True
     """
-    try:
-        h = float(cellsize)
-    except (TypeError, ValueError):
-        raise WarpblobError(f"polygonize: cellsize must be a positive number, got {cellsize!r}") from None
-    if not (np.isfinite(h) and h > 0.0):
-        raise WarpblobError(f"polygonize: cellsize must be a positive number, got {cellsize!r}")
-    if not (np.isfinite(tolerance) and tolerance > 0.0):
-        raise WarpblobError(f"polygonize: tolerance must be positive, got {tolerance!r}")
+    h = _positive("cellsize", cellsize)
+    iso = _positive("iso", iso)
+    tolerance = _positive("tolerance", tolerance)
+    if tolerance >= iso:
+        # a point where F = 0, far outside, would pass for a vertex
+        raise WarpblobError(f"polygonize: tolerance must be below iso={iso!r}, got {tolerance!r}")
+    limit = None if max_memory is None else int(_positive("max_memory", max_memory))
+    threads = check_threads(threads, "polygonize: threads")
+    if not isinstance(relax, (bool, np.bool_)):
+        raise WarpblobError(f"polygonize: relax must be True or False, got {relax!r}")
+    if progress is not None and not isinstance(progress, (bool, np.bool_)):
+        raise WarpblobError(f"polygonize: progress must be True, False or None, got {progress!r}")
     dev = resolve_device(device)
+    if limit is None:
+        limit = available_memory(dev)
     lm = linearize(model)
-    limit = available_memory(dev) if max_memory is None else int(max_memory)
     stats = {"cellsize": h}
     grid = _grid(lm, h, bounds)
-    empty = SurfaceMesh(
-        np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
-    )
     if grid is None:
-        empty.stats = {**stats, "triangles": 0, "vertices": 0, "field_evaluations": 0}
-        return empty
+        return _empty(stats)
     g, cells, blocks = grid
+    lo, hi = lm.bounds
+    side = float(np.min(hi - lo)) if np.all(hi >= lo) else np.inf  # (an empty model has no box)
+    if h > side:
+        warnings.warn(
+            f"polygonize: cellsize={h!r} is larger than the model box's smallest side ({side:.4g}; "
+            f"box {_box(lo, hi)}): features thinner than a cell are missed, so the mesh is empty or much "
+            "coarser than the model",
+            stacklevel=2,
+        )
     n_blocks = int(np.prod(blocks))
     show = bool(progress) or (progress is None and n_blocks * _kernels.CELLS >= PROGRESS_CELLS)
     clock = StageClock(dev, "polygonize", 7 if relax else 6, show=show)
     try:
-        return _run(lm, g, n_blocks, blocks, dev, float(iso), float(tolerance), limit, threads, clock, stats, relax)
+        mesh = _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, stats, relax)
     finally:
         clock.close()
+    if mesh.face_count == 0 and bounds is None and h <= side:
+        # the grid's outermost vertices see F = 0, so blocks all proven to hold no surface are all outside
+        if mesh.stats["blocks_rejected"] == n_blocks:
+            why = f"iso={iso!r} is above the field's upper bound over every block of the model box {_box(lo, hi)}"
+        else:
+            why = (
+                f"no grid edge of cellsize={h!r} crosses the level iso={iso!r} in the model box {_box(lo, hi)}: "
+                "the surface is smaller than a cell, or absent"
+            )
+        warnings.warn(f"polygonize: the mesh is empty: {why}", stacklevel=2)
+    return mesh
+
+
+def _positive(name: str, value) -> float:
+    """``value`` as a float if it is a finite number > 0, else WarpblobError naming it."""
+    if isinstance(value, (bool, np.bool_, str, bytes)):
+        raise WarpblobError(f"polygonize: {name} must be a positive number, got {value!r}")
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise WarpblobError(f"polygonize: {name} must be a positive number, got {value!r}") from None
+    if not (np.isfinite(x) and x > 0.0):
+        raise WarpblobError(f"polygonize: {name} must be a finite number > 0, got {value!r}")
+    return x
+
+
+def _box(lo: np.ndarray, hi: np.ndarray) -> str:
+    return f"[{', '.join(f'{v:.4g}' for v in lo)}] to [{', '.join(f'{v:.4g}' for v in hi)}]"
+
+
+def _empty(stats: dict) -> SurfaceMesh:
+    points = np.zeros((0, 3), np.float32)
+    empty = SurfaceMesh(points, np.zeros((0, 3), np.int32), points.copy(), points.copy())
+    empty.stats = {**stats, "triangles": 0, "vertices": 0, "field_evaluations": 0}
+    return empty
 
 
 def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, stats, relax) -> SurfaceMesh:
@@ -235,7 +289,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     triangle_counts = wp.empty(n_cells, dtype=wp.int32, device=dev)
     centre_counts = wp.empty(n_cells, dtype=wp.int32, device=dev)
     launch(
-        kernels["count"],
+        _kernels.count_kernel,
         n_cells,
         [g, float(iso), active, samples, block_map, block_states, states, table, faces],
         [edge_masks, vertex_counts, entries, triangle_counts, centre_counts],
@@ -264,7 +318,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         [positions, normals, colors, evaluations],
         dev,
         threads,
-        min_chunk=HEAVY_CHUNK,
+        min_chunk=_kernels.HEAVY_CHUNK,
     )
     if n_centres:
         launch(
@@ -281,7 +335,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     # 5. faces from the table, no field evaluation
     triangles = wp.empty(n_triangles, dtype=wp.vec3i, device=dev)
     launch(
-        kernels["face"],
+        _kernels.face_kernel,
         n_cells,
         [g, active, block_map, entries, triangle_counts, triangle_offsets, centre_offsets, n_edge_vertices, table,
          edge_info, edge_masks, vertex_offsets, positions],
@@ -289,16 +343,18 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         dev,
         threads,
     )  # fmt: skip
-    # 6. drop zero-area triangles, welding coincident corners first
-    triangles, positions, normals, colors, n_welded = _drop_degenerate(triangles, positions, normals, colors, g.h, dev, threads)
+    # 6. weld the ends of edges shorter than a small fraction of the cell
+    triangles, positions, normals, colors, n_welded = _weld.weld(
+        triangles, positions, normals, colors, g.h, dev, threads
+    )
     n_kept = triangles.shape[0]
     lap("faces")
 
     # 7. relax the vertices of skinny triangles along the surface
     relax_steps = relaxed = 0
     if relax and n_kept:
-        positions, normals, colors, relaxed, relax_steps = _relax(
-            m, triangles, positions, normals, colors, iso, tolerance, g.h, limit, dev, threads
+        positions, normals, colors, relaxed, relax_steps = _relax.relax(
+            kernels["relax"], m, triangles, positions, normals, colors, iso, tolerance, g.h, limit, dev, threads
         )
         lap("relax")
 
@@ -330,145 +386,3 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         colors.numpy().reshape(-1, 3),
         stats,
     )
-
-
-def _drop_degenerate(triangles, positions, normals, colors, h: float, device, threads=None):
-    """Remove zero-area triangles from a closed mesh and keep it closed.
-
-    Zero-area triangles appear where the surface passes through a grid
-    vertex: several edge vertices land on it and the triangles between them
-    collapse. Their coincident corners are welded first (:func:`_weld`), so
-    dropping them leaves no hole; vertices no triangle uses any more are
-    removed. Returns (triangles, positions, normals, colors, welded vertices).
-    The usual case, no zero-area triangle, costs one kernel and one scan."""
-    degenerate = _kernel_set()["degenerate"]
-    n = triangles.shape[0]
-    keep = wp.empty(n, dtype=wp.int32, device=device)
-    launch(degenerate, n, [positions, triangles], [keep], device, threads)
-    offsets, n_kept = scan(keep)
-    if n_kept == n:
-        return triangles, positions, normals, colors, 0
-    triangles, n_welded = _weld(triangles, keep, positions, h, device, threads)
-    launch(degenerate, n, [positions, triangles], [keep], device, threads)
-    offsets, n_kept = scan(keep)
-    kept = wp.empty(n_kept, dtype=wp.vec3i, device=device)
-    launch(_kernels.compact_triangles_kernel, n, [triangles, keep, offsets], [kept], device, threads)
-    return (*_drop_unused(kept, positions, normals, colors, device, threads), n_welded)
-
-
-def _weld(triangles, keep, positions, h: float, device, threads):
-    """Triangles with the coincident corners of the zero-area ones welded, and
-    how many vertices were welded away.
-
-    A zero-area triangle's edges shorter than ``WELD * h`` join their corners
-    (the surface passed through a grid vertex and several edge vertices landed
-    on it); each connected group becomes its lowest-numbered vertex. Only the
-    few zero-area triangles (``keep`` 0) are read back to the host; a zero-area
-    triangle without a short edge (three distinct collinear corners) is just
-    dropped."""
-    flags = wp.empty(keep.shape[0], dtype=wp.int32, device=device)
-    launch(_kernels.dropped_kernel, keep.shape[0], [keep], [flags], device, threads)
-    dropped = compact(flags, device, threads).numpy()
-    tris = triangles.numpy().reshape(-1, 3)[dropped]
-    p = positions.numpy().reshape(-1, 3).astype(np.float64)
-    a = tris.reshape(-1)
-    b = tris[:, [1, 2, 0]].reshape(-1)
-    short = np.linalg.norm(p[a] - p[b], axis=1) <= WELD * h
-    a, b = a[short], b[short]
-    if len(a) == 0:
-        return triangles, 0
-    # connected groups by label propagation (the graph has a handful of nodes)
-    nodes, inv = np.unique(np.concatenate([a, b]), return_inverse=True)
-    ia, ib = inv[: len(a)], inv[len(a) :]
-    label = np.arange(len(nodes))
-    while True:
-        low = np.minimum(label[ia], label[ib])
-        new = label.copy()
-        np.minimum.at(new, ia, low)
-        np.minimum.at(new, ib, low)
-        new = new[new]
-        if np.array_equal(new, label):
-            break
-        label = new
-    weld = np.arange(positions.shape[0], dtype=np.int32)
-    weld[nodes] = nodes[label]
-    out = wp.empty_like(triangles)
-    launch(
-        _kernels.remap_triangles_kernel, triangles.shape[0], [triangles, wp.array(weld, dtype=wp.int32, device=device)],
-        [out], device, threads,
-    )  # fmt: skip
-    return out, int(np.count_nonzero(nodes[label] != nodes))
-
-
-def _drop_unused(triangles, positions, normals, colors, device, threads):
-    """Remove the vertices no triangle uses and renumber the triangles."""
-    n = positions.shape[0]
-    used = wp.zeros(n, dtype=wp.int32, device=device)
-    launch(_kernels.used_vertices_kernel, triangles.shape[0], [triangles], [used], device, threads)
-    new_index, n_used = scan(used)
-    if n_used == n:
-        return triangles, positions, normals, colors
-    kept = wp.empty(n_used, dtype=wp.int32, device=device)
-    launch(compact_kernel, n, [used, new_index], [kept], device, threads)
-    out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
-    launch(_kernels.gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads)
-    renumbered = wp.empty_like(triangles)
-    launch(_kernels.remap_triangles_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
-    return (renumbered, *out)
-
-
-#: relaxation: triangles whose smallest angle is under this are improved
-RELAX_ANGLE = 10.0
-#: the fraction of the way to the neighbours' centroid a vertex moves
-RELAX_AMOUNT = 0.5
-
-
-def _relax(m, triangles, positions, normals, colors, iso, tolerance, h, limit, device, threads):
-    """Tangential relaxation of the vertices of skinny triangles (see
-    :func:`polygonize`'s ``relax``). Returns new (positions, normals, colors),
-    the number of vertices that moved and the field evaluations it took.
-
-    The corners at flagged vertices are listed as (vertex, triangle) pairs,
-    sorted by vertex (``wp.utils.radix_sort_pairs``, stable), so each vertex
-    reads its own triangles without atomics; the thread of a vertex's first
-    corner moves it.
-    Moves are then checked per triangle (no triangle turned over, collapsed,
-    or made skinnier than both before and the angle limit) and the moved
-    corners of a failing triangle are put back, until every triangle passes."""
-    n_vertices = positions.shape[0]
-    n_triangles = triangles.shape[0]
-    kernels = _kernel_set()
-    cos_limit = float(np.cos(np.radians(RELAX_ANGLE)))
-    flags = wp.zeros(n_vertices, dtype=wp.int32, device=device)
-    launch(_kernels.skinny_vertices_kernel, n_triangles, [positions, triangles, cos_limit], [flags], device, threads)
-    counts = wp.empty(n_triangles, dtype=wp.int32, device=device)
-    launch(_kernels.flagged_corners_kernel, n_triangles, [triangles, flags], [counts], device, threads)
-    offsets, n_corners = scan(counts)
-    if n_corners == 0:
-        return positions, normals, colors, 0, 0
-    check_memory("polygonize", "relaxation", n_corners * 20 + n_vertices * 40, limit)
-    corner_vertex = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
-    corner_triangle = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
-    launch(_kernels.emit_corners_kernel, n_triangles, [triangles, flags, offsets], [corner_vertex, corner_triangle], device, threads)
-    wp.utils.radix_sort_pairs(corner_vertex, corner_triangle, n_corners)
-    new = [wp.clone(a) for a in (positions, normals, colors)]
-    moved = wp.zeros(n_vertices, dtype=wp.int32, device=device)
-    evaluations = wp.empty(n_corners, dtype=wp.int32, device=device)
-    launch(
-        kernels["relax"], n_corners,
-        [m, float(iso), float(tolerance), RELAX_AMOUNT, float(h), positions, normals, triangles, corner_vertex,
-         corner_triangle, n_corners],
-        [*new, moved, evaluations], device, threads, min_chunk=HEAVY_CHUNK,
-    )  # fmt: skip
-    revert = wp.empty(n_vertices, dtype=wp.int32, device=device)
-    for _ in range(8):
-        revert.zero_()
-        launch(_kernels.flipped_kernel, n_triangles, [positions, new[0], triangles, moved, cos_limit], [revert], device, threads)
-        _, n_revert = scan(revert)
-        if n_revert == 0:
-            break
-        launch(_kernels.revert_kernel, n_vertices, [revert, positions, normals, colors], [*new, moved], device, threads)
-    else:  # pragma: no cover - the moves never settled: keep none of them
-        return positions, normals, colors, 0, int(evaluations.numpy().sum())
-    _, n_moved = scan(moved)
-    return (*new, n_moved, int(evaluations.numpy().sum()))

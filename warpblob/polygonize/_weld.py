@@ -1,0 +1,442 @@
+"""Welding of short edges: the one rule for the vertices the grid puts too close.
+
+Where the surface passes close to a grid vertex, the vertices on the grid
+edges around it (up to six) land next to each other, and the triangles
+between them are needles (of zero area where two coincide). Relaxation
+cannot mend these: both ends of the short edge have nearly the same
+neighbours and move together. Every mesh edge shorter than ``WELD * h`` is
+contracted instead (:func:`contract`): one end takes the other's place,
+index, normal and colour, the triangles that collapse go, and the mesh stays
+a closed 2-manifold. Kernels find the short edges (one kernel and one scan
+when there is none, the usual case on smooth models); the few triangles at
+their ends are contracted on the host in vectorized rounds, and written back
+by kernels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from .._parallel import launch
+from .._stages import compact, compact_kernel, scan
+
+#: mesh edges shorter than WELD cells are contracted. A triangle of the face
+#: stage has its corners on one cell's edges, so no edge longer than the cell's
+#: diagonal sqrt(3) h: if its smallest angle is under 1 degree and it is a needle
+#: (not a flat cap), the edge opposite is under sqrt(3) h sin(1 degree) = 0.030 h.
+#: The vertex that goes moves at most this far, onto a vertex the root search
+#: placed, which does not move: every vertex still has |F - iso| <= tolerance.
+WELD = 3.0e-2
+
+
+@wp.kernel(enable_backward=False)
+def short_edges_kernel(
+    positions: wp.array(dtype=wp.vec3),
+    triangles: wp.array(dtype=wp.vec3i),
+    limit: float,
+    offset: int,
+    flags: wp.array(dtype=wp.int32),
+    counts: wp.array(dtype=wp.int32),
+):
+    """``counts`` 1 for a triangle with an edge at most ``limit`` long, whose
+    ends are flagged (every writer stores 1, so concurrent writes agree)."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    found = int(0)
+    for k in range(3):
+        a = t[k]
+        b = t[(k + 1) % 3]
+        if wp.length_sq(positions[a] - positions[b]) <= limit * limit:
+            flags[a] = 1
+            flags[b] = 1
+            found = 1
+    counts[tid] = found
+
+
+@wp.kernel(enable_backward=False)
+def valence_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, valence: wp.array(dtype=wp.int32)):
+    """Triangles at each vertex (integer atomics: the counts do not depend on the order)."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    for k in range(3):
+        wp.atomic_add(valence, t[k], 1)
+
+
+@wp.kernel(enable_backward=False)
+def touching_kernel(
+    triangles: wp.array(dtype=wp.vec3i),
+    marks: wp.array(dtype=wp.int32),
+    offset: int,
+    touching: wp.array(dtype=wp.int32),
+):
+    """1 for a triangle with a marked corner."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    touching[tid] = wp.where(marks[t[0]] + marks[t[1]] + marks[t[2]] != 0, 1, 0)
+
+
+@wp.kernel(enable_backward=False)
+def gather_patch_kernel(
+    triangles: wp.array(dtype=wp.vec3i),
+    positions: wp.array(dtype=wp.vec3),
+    flags: wp.array(dtype=wp.int32),
+    valence: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    offset: int,
+    patch: wp.array(dtype=wp.vec3i),
+    corners: wp.array2d(dtype=wp.vec3),
+    corner_flags: wp.array(dtype=wp.vec3i),
+    corner_valence: wp.array(dtype=wp.vec3i),
+):
+    """Triangle ``ids[i]``, its corners' positions, flags and valences."""
+    tid = wp.tid() + offset
+    t = triangles[ids[tid]]
+    patch[tid] = t
+    for k in range(3):
+        corners[tid, k] = positions[t[k]]
+    corner_flags[tid] = wp.vec3i(flags[t[0]], flags[t[1]], flags[t[2]])
+    corner_valence[tid] = wp.vec3i(valence[t[0]], valence[t[1]], valence[t[2]])
+
+
+@wp.kernel(enable_backward=False)
+def scatter_triangles_kernel(
+    ids: wp.array(dtype=wp.int32), patch: wp.array(dtype=wp.vec3i), offset: int, triangles: wp.array(dtype=wp.vec3i)
+):
+    tid = wp.tid() + offset
+    triangles[ids[tid]] = patch[tid]
+
+
+@wp.kernel(enable_backward=False)
+def distinct_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, keep: wp.array(dtype=wp.int32)):
+    """1 for a triangle with three distinct corners (the others collapsed in a contraction)."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    keep[tid] = wp.where(t[0] != t[1] and t[1] != t[2] and t[0] != t[2], 1, 0)
+
+
+@wp.kernel(enable_backward=False)
+def compact_triangles_kernel(
+    triangles: wp.array(dtype=wp.vec3i),
+    keep: wp.array(dtype=wp.int32),
+    scanned: wp.array(dtype=wp.int32),
+    offset: int,
+    out: wp.array(dtype=wp.vec3i),
+):
+    tid = wp.tid() + offset
+    if keep[tid] != 0:
+        out[scanned[tid]] = triangles[tid]
+
+
+@wp.kernel(enable_backward=False)
+def remap_triangles_kernel(
+    triangles: wp.array(dtype=wp.vec3i), index: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
+):
+    """Replace each corner ``v`` by ``index[v]``."""
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    out[tid] = wp.vec3i(index[t[0]], index[t[1]], index[t[2]])
+
+
+@wp.kernel(enable_backward=False)
+def used_vertices_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, used: wp.array(dtype=wp.int32)):
+    tid = wp.tid() + offset
+    t = triangles[tid]
+    used[t[0]] = 1
+    used[t[1]] = 1
+    used[t[2]] = 1
+
+
+@wp.kernel(enable_backward=False)
+def gather_vertices_kernel(
+    kept: wp.array(dtype=wp.int32),
+    positions: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    colors: wp.array(dtype=wp.vec3),
+    offset: int,
+    out_positions: wp.array(dtype=wp.vec3),
+    out_normals: wp.array(dtype=wp.vec3),
+    out_colors: wp.array(dtype=wp.vec3),
+):
+    tid = wp.tid() + offset
+    v = kept[tid]
+    out_positions[tid] = positions[v]
+    out_normals[tid] = normals[v]
+    out_colors[tid] = colors[v]
+
+
+def weld(triangles, positions, normals, colors, h: float, device, threads=None):
+    """Contract the edges shorter than ``WELD * h`` of a closed mesh (see the
+    module docstring), drop the collapsed triangles and the removed vertices.
+
+    Args:
+        triangles: (T,) vec3i vertex indices, consistently oriented.
+        positions, normals, colors: (V,) vec3 vertex data (not modified).
+        h: cell size, model units.
+
+    Returns:
+        (triangles, positions, normals, colors, welded vertices). The usual
+        case, no short edge, costs one kernel and one scan; otherwise only the
+        triangles at the ends of short edges are read back to the host.
+    """
+    n = triangles.shape[0]
+    flags = wp.zeros(positions.shape[0], dtype=wp.int32, device=device)
+    counts = wp.empty(n, dtype=wp.int32, device=device)
+    launch(short_edges_kernel, n, [positions, triangles, float(WELD * h)], [flags, counts], device, threads)
+    _, n_short = scan(counts)  # host sync: whether any edge is short
+    if n_short == 0:
+        return triangles, positions, normals, colors, 0
+    touching = wp.empty(n, dtype=wp.int32, device=device)
+    launch(touching_kernel, n, [triangles, flags], [touching], device, threads)
+    ids = compact(touching, device, threads)
+    valence = wp.zeros_like(flags)
+    launch(valence_kernel, n, [triangles], [valence], device, threads)
+    n_patch = ids.shape[0]
+    patch = wp.empty(n_patch, dtype=wp.vec3i, device=device)
+    corners = wp.empty((n_patch, 3), dtype=wp.vec3, device=device)
+    corner_flags = wp.empty(n_patch, dtype=wp.vec3i, device=device)
+    corner_valence = wp.empty(n_patch, dtype=wp.vec3i, device=device)
+    launch(
+        gather_patch_kernel, n_patch, [triangles, positions, flags, valence, ids],
+        [patch, corners, corner_flags, corner_valence], device, threads,
+    )  # fmt: skip
+    tris = patch.numpy().reshape(-1, 3)  # host sync: the patch, about six triangles per end of a short edge
+    vertices, local = np.unique(tris, return_inverse=True)
+    local = local.reshape(-1, 3)
+    points = np.zeros((len(vertices), 3))
+    points[local.reshape(-1)] = corners.numpy().reshape(-1, 3)
+    candidate = np.zeros(len(vertices), dtype=bool)
+    candidate[local.reshape(-1)] = corner_flags.numpy().reshape(-1) != 0
+    counts = np.zeros(len(vertices), dtype=np.int64)
+    counts[local.reshape(-1)] = corner_valence.numpy().reshape(-1)
+    corners, alive = contract(local, points, candidate, counts, WELD * h)
+    if np.all(alive):
+        return triangles, positions, normals, colors, 0
+    # a triangle that went is written with three equal corners, which the compaction drops
+    new = np.where(alive[:, None], vertices[corners], tris[:, :1])
+    welded = wp.clone(triangles)
+    launch(
+        scatter_triangles_kernel, n_patch, [ids, wp.array(new.astype(np.int32), dtype=wp.vec3i, device=device)],
+        [welded], device, threads,
+    )  # fmt: skip
+    keep = wp.empty(n, dtype=wp.int32, device=device)
+    launch(distinct_kernel, n, [welded], [keep], device, threads)
+    offsets, n_kept = scan(keep)
+    out = wp.empty(n_kept, dtype=wp.vec3i, device=device)
+    launch(compact_triangles_kernel, n, [welded, keep, offsets], [out], device, threads)
+    out = drop_unused(out, positions, normals, colors, device, threads)
+    return (*out, positions.shape[0] - out[1].shape[0])
+
+
+def contract(
+    triangles: np.ndarray, points: np.ndarray, candidate: np.ndarray, valence: np.ndarray, limit: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The edge contractions that weld the short edges of a patch of a closed mesh.
+
+    Contracting an edge ``(a, b)`` relabels ``b`` as ``a`` in their
+    triangles; the two triangles on the edge collapse and go, and so does any
+    pair that ends up back to back at the merged vertex (a fold of zero
+    area: where a vertex opposite the edge had three neighbours, it goes
+    with it). What is left around the merged vertex must be one fan of three
+    triangles or more (the link condition of Dey, Edelsbrunner, Guha and
+    Nekhayev, *Topology preserving edge contraction*, Publ. Inst. Math.
+    Beograd 66(80), 1999, which keeps the topology), or nothing (a closed
+    piece of four vertices, a sliver under ``limit`` thick, goes whole). It
+    is refused where the ends have a further common neighbour (a neck: two
+    sheets of the surface meet across the edge, and contracting it would
+    pinch them), an end is on a boundary (where bounds clip the surface),
+    another vertex would keep one or two triangles, a triangle would turn
+    over, or a corner would end farther than ``limit`` from the vertex it had
+    at the start: every corner moves by at most ``limit``, onto an original
+    vertex.
+
+    Rounds of contractions, each of edges whose ends are at least two edges
+    apart (so their stars are disjoint and the checks of one are not changed
+    by another, but for the triangles a common neighbour loses), the
+    shortest first, until no short edge can go.
+
+    Args:
+        triangles: (T, 3) indices into ``points``, consistently oriented:
+            every triangle at a candidate (their stars are complete).
+        points: (N, 3) positions, model units.
+        candidate: (N,) bool, the vertices that may be welded (ends of short edges).
+        valence: (N,) the triangles at each vertex in the whole mesh.
+        limit: longest edge contracted, model units.
+
+    Returns:
+        (corners, alive): (T, 3) the triangles' corners after welding and
+        (T,) bool, whether each is still there.
+    """
+    n = len(points)
+    start = np.asarray(triangles, dtype=np.int64)
+    cur = start.copy()
+    alive = np.ones(len(cur), dtype=bool)
+    live = np.arange(len(cur))
+    loaded = candidate.copy()  # the candidates whose stars are all in ``live``
+    outside = valence - np.bincount(start.reshape(-1), minlength=n)  # each vertex's triangles not in the patch
+    while True:
+        tris = cur[live]
+        valence = outside + np.bincount(cur[alive].reshape(-1), minlength=n)
+        frm, to = tris.reshape(-1), tris[:, [1, 2, 0]].reshape(-1)
+        keys, uses = np.unique(np.minimum(frm, to) * n + np.maximum(frm, to), return_counts=True)
+        eu, ew = keys // n, keys % n  # undirected edges, eu < ew
+        open_end = np.zeros(n, dtype=bool)
+        open_end[eu[uses != 2]] = open_end[ew[uses != 2]] = True
+        length = np.linalg.norm(points[eu] - points[ew], axis=1)
+        c = np.flatnonzero(loaded[eu] & loaded[ew] & (length <= limit) & ~open_end[eu] & ~open_end[ew])
+        if len(c) == 0:
+            break
+        keep, move = eu[c], ew[c]
+        owner, row = _stars(tris, keep, move, n)
+        before = tris[row]
+        merged = np.where(before == move[owner, None], keep[owner, None], before)
+        collapsed = (merged[:, 0] == merged[:, 1]) | (merged[:, 1] == merged[:, 2]) | (merged[:, 0] == merged[:, 2])
+        # rotated to (k, u, w) with k the merged vertex: u -> w is an edge of its link
+        slot = np.argmax(merged == keep[owner, None], axis=1)
+        u = merged[np.arange(len(row)), (slot + 1) % 3]
+        w = merged[np.arange(len(row)), (slot + 2) % 3]
+        fan = (owner * n + u) * n + w
+        fold = ~collapsed & _isin((owner * n + w) * n + u, fan[~collapsed])
+        stay = ~collapsed & ~fold
+        ok, order = _one_fan(owner, u, w, stay, n, len(c))
+        node_owner = owner[order]
+        # the merged vertex is the lower end, else the upper one, where no corner then ends farther
+        # than limit from its first vertex (earlier rounds checked the others) and no triangle turns over
+        rows = np.arange(len(order))
+        origin = points[start[live[row[order]], slot[order]]]
+        old = before[order]
+        n0 = np.cross(points[old[:, 1]] - points[old[:, 0]], points[old[:, 2]] - points[old[:, 0]])
+        flat = ~np.any(n0 != 0.0, axis=1)  # a zero-area triangle has no orientation to keep
+
+        def onto(end):
+            new = merged[order].copy()
+            new[rows, slot[order]] = end[node_owner]
+            n1 = np.cross(points[new[:, 1]] - points[new[:, 0]], points[new[:, 2]] - points[new[:, 0]])
+            far = np.sum((points[end[node_owner]] - origin) ** 2, axis=1) > limit * limit
+            turned = (np.einsum("ij,ij->i", n0, n1) <= 0.0) & ~flat
+            return new, np.bincount(node_owner[far | turned], minlength=len(c)) == 0
+
+        after, lower = onto(keep)
+        upper_after, upper = onto(move)
+        ok &= lower | upper
+        after = np.where(lower[node_owner, None], after, upper_after)
+        # every other vertex keeps three triangles or none
+        lost = (owner[~stay, None] * n + merged[~stay]).reshape(-1)
+        lost = lost[merged[~stay].reshape(-1) != np.repeat(keep[owner[~stay]], 3)]
+        pair, times = np.unique(lost, return_counts=True)
+        left = valence[pair % n] - times
+        ok[(pair // n)[(left > 0) & (left < 3)]] = False
+        go = np.flatnonzero(ok)
+        if len(go) == 0:
+            break
+        chosen = np.zeros(len(c), dtype=bool)
+        chosen[go[_apart(keys[c[go]], length[c[go]], keep[go], move[go], eu, ew, n)]] = True
+        # a vertex next to two of them loses triangles to both: it too keeps three or none
+        while True:
+            taken = chosen[pair // n]
+            total = np.bincount(pair[taken] % n, weights=times[taken], minlength=n)[pair % n]
+            rest = valence[pair % n] - total
+            clash = taken & (total > times) & (rest > 0) & (rest < 3)
+            if not np.any(clash):
+                break
+            chosen[(pair // n)[clash]] = False
+        alive[live[row[~stay & chosen[owner]]]] = False
+        pick = chosen[node_owner]
+        cur[live[row[order[pick]]]] = after[pick]
+        # a short edge next round has an end among this round's and the other a candidate next
+        # to it: work on those candidates' stars only
+        live = live[alive[live]]
+        near = np.unique(cur[live][np.any(np.isin(cur[live], np.concatenate([keep, move])), axis=1)])
+        loaded[:] = False
+        loaded[near[candidate[near]]] = True
+        live = live[np.any(loaded[cur[live]], axis=1)]
+    return cur, alive
+
+
+def _stars(tris: np.ndarray, keep: np.ndarray, move: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles at either end of each edge ``(keep[i], move[i])``, once
+    each: (owner edge, row of ``tris``) pairs."""
+    corners = tris.reshape(-1)
+    by_vertex = np.argsort(corners, kind="stable")
+    here = np.bincount(corners, minlength=n)
+    first = np.cumsum(here) - here
+    o1, at1 = _expand(first[keep], here[keep])
+    o2, at2 = _expand(first[move], here[move])
+    both = np.any(tris[by_vertex[at2] // 3] == keep[o2, None], axis=1)  # listed at the kept end already
+    return np.concatenate([o1, o2[~both]]), by_vertex[np.concatenate([at1, at2[~both]])] // 3
+
+
+def _one_fan(owner: np.ndarray, u: np.ndarray, w: np.ndarray, stay: np.ndarray, n: int, count: int):
+    """Whether the link of each merged vertex (one edge ``u -> w`` per staying
+    row, by owner) is one simple cycle of three edges or more, or nothing
+    (a closed piece of four vertices going whole): (ok per owner, the staying
+    rows sorted by their link edge's start)."""
+    ok = np.ones(count, dtype=bool)
+    order = np.flatnonzero(stay)[np.argsort(owner[stay] * n + u[stay], kind="stable")]
+    node_owner = owner[order]
+    starts, ends = node_owner * n + u[order], node_owner * n + w[order]
+    ok[node_owner[_repeated(starts) | _repeated(ends) | ~_isin(ends, starts)]] = False
+    succ = np.minimum(np.searchsorted(starts, ends), max(len(order) - 1, 0))
+    succ = np.where(starts[succ] == ends, succ, np.arange(len(order)))  # (a broken link stays in its owner)
+    label = np.arange(len(order))
+    for _ in range(int(np.ceil(np.log2(max(len(order), 2)))) + 1):  # pointer doubling: the least edge of each cycle
+        label = np.minimum(label, label[succ])
+        succ = succ[succ]
+    ok &= np.bincount(node_owner[label == np.arange(len(order))], minlength=count) <= 1
+    ok[node_owner[np.bincount(label, minlength=len(order))[label] < 3]] = False
+    return ok, order
+
+
+def _apart(keys, length, keep, move, eu, ew, n: int) -> np.ndarray:
+    """Which of the edges ``(keep[i], move[i])`` go this round: each that is
+    the shortest of those with an end at or next to its own ends, so that
+    the stars of the edges taken are disjoint. Equal lengths (coincident
+    vertices) are ordered by a hash of the edge key, not the key, so that a
+    row of them is not taken one per round (as in Luby's independent sets)."""
+    rank = np.empty(len(keys), dtype=np.int64)
+    scramble = (keys.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(16)
+    rank[np.lexsort((scramble, length))] = np.arange(len(keys))
+    least = np.full(n, len(keys))
+    np.minimum.at(least, keep, rank)
+    np.minimum.at(least, move, rank)
+    spread = least.copy()
+    np.minimum.at(spread, eu, least[ew])
+    np.minimum.at(spread, ew, least[eu])
+    return (spread[keep] == rank) & (spread[move] == rank)
+
+
+def _isin(query: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Whether each of ``query`` is among ``keys`` (int64 arrays)."""
+    if len(keys) == 0:
+        return np.zeros(len(query), dtype=bool)
+    keys = np.sort(keys)
+    return keys[np.minimum(np.searchsorted(keys, query), len(keys) - 1)] == query
+
+
+def _repeated(keys: np.ndarray) -> np.ndarray:
+    """Whether each of ``keys`` occurs more than once."""
+    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    return counts[inverse] > 1
+
+
+def _expand(first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, index): the indices ``first[i] .. first[i] + count[i] - 1`` of each ``i``, flat, with their ``i``."""
+    owner = np.repeat(np.arange(len(first)), count)
+    return owner, np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count) + first[owner]
+
+
+def drop_unused(triangles, positions, normals, colors, device, threads=None):
+    """Remove the vertices no triangle uses and renumber the triangles."""
+    n = positions.shape[0]
+    used = wp.zeros(n, dtype=wp.int32, device=device)
+    launch(used_vertices_kernel, triangles.shape[0], [triangles], [used], device, threads)
+    new_index, n_used = scan(used)
+    if n_used == n:
+        return triangles, positions, normals, colors
+    kept = wp.empty(n_used, dtype=wp.int32, device=device)
+    launch(compact_kernel, n, [used, new_index], [kept], device, threads)
+    out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
+    launch(gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads)
+    renumbered = wp.empty_like(triangles)
+    launch(remap_triangles_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
+    return (renumbered, *out)
