@@ -23,3 +23,6 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch):
     assert namespace["mesh"].is_closed_manifold()
     assert (tmp_path / "model.usda").exists() and (tmp_path / "model_volume.usda").exists()
     assert namespace["q"].inverted_count == 0
+    sim = namespace["sim"]
+    assert (tmp_path / "tumor_drop.usdc").exists() and sim.time > 1.0
+    assert np.all(sim.positions[:, 2] >= -1.6 - 1e-3)  # on the ground, not through it
