@@ -17,7 +17,7 @@ if not _os.environ.get("WARPBLOB_VERBOSE"):
     _wp.config.log_level = 30
 
 from . import scenes  # noqa: E402
-from ._errors import MeshError, ModelError, ResourceError, SceneError, SimulationError, ToolError, WarpblobError
+from ._errors import MeshError, ModelError, ResourceError, SceneError, SimulationError, ToolError, CutError, WarpblobError
 from ._linearize import LinearModel, linearize
 from ._parallel import set_thread_count, thread_count
 from .field import VolumeEstimate, color, evaluate, field, gradient, monte_carlo_volume
@@ -75,6 +75,7 @@ __all__ = [
     "MeshError",
     "SimulationError",
     "ToolError",
+    "CutError",
     "ISO_VALUE",
     "ISO_DISTANCE",
     "Node",

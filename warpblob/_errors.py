@@ -1,6 +1,6 @@
 """Exception types raised by warpblob at its Python boundary."""
 
-__all__ = ["WarpblobError", "ModelError", "SceneError", "ResourceError", "MeshError", "SimulationError", "ToolError"]
+__all__ = ["WarpblobError", "ModelError", "SceneError", "ResourceError", "MeshError", "SimulationError", "ToolError", "CutError"]
 
 
 class WarpblobError(Exception):
@@ -29,3 +29,7 @@ class SimulationError(WarpblobError, ValueError):
 
 class ToolError(WarpblobError, ValueError):
     """A tool or tool path got a bad parameter (non-increasing times, NaN poses, an open mesh)."""
+
+
+class CutError(WarpblobError, ValueError):
+    """A cut got a bad sweep, tool path or mesh (NaN points, too few samples, wrong shapes)."""
