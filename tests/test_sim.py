@@ -316,7 +316,7 @@ def test_stats_report_every_stage():
     sim.step(3)
     s = sim.stats
     assert s["steps"] == 3 and sim.time == pytest.approx(3 / 60)
-    assert set(s["seconds"]) == {"assembly", "cg", "update", "elements", "check"}
+    assert set(s["seconds"]) == {"contact", "assembly", "cg", "update", "elements", "check"}
     assert all(v >= 0 for v in s["seconds"].values())
     assert s["cg_iterations"] > 0 and s["cg_iterations_total"] >= s["cg_iterations"]
     assert s["residual"] >= 0 and s["tet_count"] == mesh.tet_count

@@ -28,6 +28,7 @@ from . import sim
 from .sim import Simulation
 from .tetrahedralize import tetrahedralize
 from . import tools
+from . import scenarios
 from .tree import (
     ISO_DISTANCE,
     ISO_VALUE,
@@ -123,4 +124,5 @@ __all__ = [
     "Simulation",
     "scenes",
     "tools",
+    "scenarios",
 ]

@@ -335,6 +335,9 @@ def _parser() -> argparse.ArgumentParser:
     from .sim._command import add_simulate_parser
 
     add_simulate_parser(sub)
+    from .scenarios._command import add_scenario_parser
+
+    add_scenario_parser(sub)
     return p
 
 

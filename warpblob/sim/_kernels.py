@@ -220,10 +220,14 @@ def assemble_system_kernel(
     node_force: wp.array(dtype=wp.vec3),
     node_block: wp.array(dtype=wp.mat33),
     external: wp.array(dtype=wp.vec3),
+    contact_force: wp.array(dtype=wp.vec3),
+    contact_weight: wp.array(dtype=float),
+    contact_block: wp.array(dtype=wp.mat33),
     gravity: wp.vec3,
     h: float,
     c_mass: float,
     c_stiff: float,
+    c_contact: float,
     ground: int,
     height: float,
     friction: float,
@@ -250,6 +254,11 @@ def assemble_system_kernel(
     ``-friction * m * dv_n`` along its predicted tangential direction added
     to ``b``. Contacts and friction thus act inside the implicit solve.
 
+    Tool contact (with ``c_contact`` non-zero, on a node of positive
+    ``contact_weight``): the contact force joins ``f`` and ``c_contact`` times
+    its stiffness block joins the system (:func:`contact_row`); elsewhere no
+    arithmetic changes, so an idle tool leaves every bit as it was.
+
     The filtered system is ``S A S + I - S`` with ``S = diag(axes)``; its
     right-hand side gets ``S b + (I - S) v_p`` here and ``- S A v_p`` from
     :func:`gather_products_kernel`.
@@ -269,6 +278,9 @@ def assemble_system_kernel(
         return
     m = mass[i]
     force = node_force[i] + m * gravity + external[i]
+    touched = c_contact != 0.0 and contact_weight[i] > 0.0
+    if touched:
+        force = force + contact_force[i]
     b = m * v[i] + h * force
     s = wp.vec3(1.0, 1.0, 1.0)
     vp = wp.vec3()
@@ -291,7 +303,10 @@ def assemble_system_kernel(
     prescribed[i] = vp
     axes[i] = s
     constrained = wp.diag(wp.vec3(1.0, 1.0, 1.0) - s)
-    inverse_block[i] = wp.inverse(S * (c_mass * m * one + c_stiff * node_block[i]) * S + constrained)
+    D = c_mass * m * one + c_stiff * node_block[i]
+    if touched:
+        D = D + c_contact * contact_block[i]
+    inverse_block[i] = wp.inverse(S * D * S + constrained)
 
 
 @wp.kernel(enable_backward=False)
@@ -337,6 +352,28 @@ def multiply_elements_kernel(
 
 
 @wp.func
+def contact_row(
+    i: int,
+    Ap: wp.vec3,
+    u: wp.vec3,
+    s: wp.vec3,
+    contact_weight: wp.array(dtype=float),
+    contact_block: wp.array(dtype=wp.mat33),
+    c_contact: float,
+) -> wp.vec3:
+    """``Ap + S c_contact K_c u`` on a node in tool contact, else ``Ap`` untouched (no rounding added).
+
+    ``K_c`` is the node's contact stiffness block (a penalty inside the
+    implicit solve, :mod:`warpblob.sim._contact`); it is block diagonal, so
+    it acts on the node's own ``u`` only.
+    """
+    if c_contact != 0.0:
+        if contact_weight[i] > 0.0:
+            return Ap + wp.cw_mul(s, c_contact * (contact_block[i] * u))
+    return Ap
+
+
+@wp.func
 def apply_row(
     i: int,
     node_offsets: wp.array(dtype=wp.int32),
@@ -347,15 +384,20 @@ def apply_row(
     p: wp.array(dtype=wp.vec3),
     c_mass: float,
     c_stiff: float,
+    contact_weight: wp.array(dtype=float),
+    contact_block: wp.array(dtype=wp.mat33),
+    c_contact: float,
 ) -> wp.vec3:
-    """Row ``i`` of the filtered ``S (c_mass M + c_stiff K') S p + (I - S) p`` from the per-corner products of
-    ``S p``, summed in incidence order."""
+    """Row ``i`` of the filtered ``S (c_mass M + c_stiff K' + c_contact K_c) S p + (I - S) p`` from the
+    per-corner products of ``S p``, summed in incidence order."""
     s = axes[i]
     Kp = wp.vec3()
     for k in range(node_offsets[i], node_offsets[i + 1]):
         Kp += corner_out[node_corners[k]]
     pi = p[i]
-    return wp.cw_mul(s, c_mass * mass[i] * wp.cw_mul(s, pi) + c_stiff * Kp) + wp.cw_mul(wp.vec3(1.0, 1.0, 1.0) - s, pi)
+    sp = wp.cw_mul(s, pi)
+    Ap = wp.cw_mul(s, c_mass * mass[i] * sp + c_stiff * Kp) + wp.cw_mul(wp.vec3(1.0, 1.0, 1.0) - s, pi)
+    return contact_row(i, Ap, sp, s, contact_weight, contact_block, c_contact)
 
 
 @wp.kernel(enable_backward=False)
@@ -369,6 +411,9 @@ def gather_products_kernel(
     y: wp.array(dtype=wp.vec3),
     c_mass: float,
     c_stiff: float,
+    contact_weight: wp.array(dtype=float),
+    contact_block: wp.array(dtype=wp.mat33),
+    c_contact: float,
     alpha: float,
     beta: float,
     project: int,
@@ -389,12 +434,14 @@ def gather_products_kernel(
     s = axes[i]
     Ap = wp.vec3()
     if project != 0:
-        Ap = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff)
+        Ap = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff, contact_weight,
+                       contact_block, c_contact)  # fmt: skip
     else:
         Kp = wp.vec3()
         for k in range(node_offsets[i], node_offsets[i + 1]):
             Kp += corner_out[node_corners[k]]
-        Ap = wp.cw_mul(s, c_mass * mass[i] * p[i] + c_stiff * Kp)
+        Ap = contact_row(i, wp.cw_mul(s, c_mass * mass[i] * p[i] + c_stiff * Kp), p[i], s, contact_weight,
+                         contact_block, c_contact)  # fmt: skip
     z[i] = alpha * Ap + yi
 
 
@@ -430,6 +477,9 @@ def start_cg_kernel(
     x: wp.array(dtype=wp.vec3),
     c_mass: float,
     c_stiff: float,
+    contact_weight: wp.array(dtype=float),
+    contact_block: wp.array(dtype=wp.mat33),
+    c_contact: float,
     n: int,
     offset: int,
     r: wp.array(dtype=wp.vec3),
@@ -445,7 +495,8 @@ def start_cg_kernel(
     bb = float(0.0)
     for i in range(span[0], span[1]):
         bi = b_vec[i]
-        ri = bi - apply_row(i, node_offsets, node_corners, corner_out, mass, axes, x, c_mass, c_stiff)
+        ri = bi - apply_row(i, node_offsets, node_corners, corner_out, mass, axes, x, c_mass, c_stiff, contact_weight,
+                            contact_block, c_contact)  # fmt: skip
         zi = inverse_block[i] * ri
         r[i] = ri
         z[i] = zi
@@ -468,6 +519,9 @@ def product_cg_kernel(
     p: wp.array(dtype=wp.vec3),
     c_mass: float,
     c_stiff: float,
+    contact_weight: wp.array(dtype=float),
+    contact_block: wp.array(dtype=wp.mat33),
+    c_contact: float,
     n: int,
     offset: int,
     Ap: wp.array(dtype=wp.vec3),
@@ -478,7 +532,8 @@ def product_cg_kernel(
     span = block_range(blk, partials.shape[1], n)
     pAp = float(0.0)
     for i in range(span[0], span[1]):
-        y = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff)
+        y = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff, contact_weight,
+                      contact_block, c_contact)  # fmt: skip
         Ap[i] = y
         pAp += wp.dot(p[i], y)
     partials[4, blk] = pAp
@@ -536,6 +591,24 @@ def direction_cg_kernel(
         beta = partial_sum(partials, 1 - parity) / old
     for i in range(span[0], span[1]):
         p[i] = z[i] + beta * p[i]
+
+
+@wp.kernel(enable_backward=False)
+def precondition_kernel(
+    inverse_block: wp.array(dtype=wp.mat33),
+    r: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    alpha: float,
+    beta: float,
+    offset: int,
+    z: wp.array(dtype=wp.vec3),
+):
+    """``z = alpha P r + beta y`` with the block-Jacobi ``P`` (the preconditioner as a ``LinearOperator``)."""
+    i = wp.tid() + offset
+    zi = alpha * (inverse_block[i] * r[i])
+    if beta != 0.0:
+        zi = zi + beta * y[i]
+    z[i] = zi
 
 
 @wp.kernel(enable_backward=False)

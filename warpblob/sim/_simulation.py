@@ -24,6 +24,10 @@ at most ``friction * dv_n`` sticks (its tangential velocity is held at 0),
 else it slides with the impulse ``friction * m * dv_n`` against its
 predicted tangential motion. Contacts separate when the prediction leaves
 the plane.
+
+Tools (:meth:`Simulation.add_tool`): rigid tools on paths press the tissue
+through the model's field carried by the deformation, a penalty inside the
+implicit solve (:mod:`warpblob.sim._contact`, after the thesis' chapter 6).
 """
 
 from __future__ import annotations
@@ -34,19 +38,20 @@ import numpy as np
 import warp as wp
 
 from .._device import resolve_device
-from .._errors import SimulationError
+from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
+from ._contact import Contact, ToolContact, highlight
 from ._elements import Elements, material_values
 from ._embed import Embedding, embed, interpolate
-from ._solver import NODE_GRAIN, ElementState, ImplicitSolver, split_launch
+from ._solver import LINEAR_SOLVERS, NODE_GRAIN, ElementState, ImplicitSolver, split_launch
 
 __all__ = ["Simulation"]
 
 #: a step diverged when its kinetic plus elastic energy exceeds this many times its budget (see Simulation.step)
 BLOWUP = 10.0
-_STAGES = ("assembly", "cg", "update", "elements", "check")
+_STAGES = ("contact", "assembly", "cg", "update", "elements", "check")
 
 
 def _vector(name: str, value, length: int = 3) -> tuple:
@@ -71,6 +76,9 @@ def _number(name: str, value, *, low: float | None = None, strict: bool = True) 
 class Simulation:
     """Implicit co-rotational FEM of a tet mesh, every per-element and per-node loop a Warp kernel.
 
+    Rigid tools on paths press it through the model's field
+    (:meth:`add_tool`, :meth:`contact_force`, :meth:`contact_points`).
+
     Args:
         volume: a :class:`~warpblob.mesh.TetMesh` (rest shape = its nodes) or a
             :class:`~warpblob.mesh.TetStructure` (rest and current positions
@@ -90,20 +98,37 @@ class Simulation:
             (default 0.5); see the module docstring for the contact model.
         tolerance: CG tolerance, relative to the right-hand side's norm.
         max_iterations: CG iteration cap per step.
+        linear_solver: ``"pcg"`` (default): the fused block-Jacobi
+            preconditioned CG of :mod:`warpblob.sim._solver`; ``"warp"``:
+            ``warp.optim.linear.cg`` on a ``LinearOperator`` of the same
+            product, with the same block-Jacobi preconditioner and tolerance
+            rule: the same step to CG tolerance, for comparison (per CG
+            iteration at 10K tets on one CPU thread, Warp 1.19: 12.3 ms
+            against 0.23 ms; :mod:`warpblob.sim._solver` says why).
         device: Warp device (default: Warp's default device).
         threads: CPU threads (default: :func:`warpblob.thread_count` when the
             simulation is built); results are bit-identical for any count.
+        model: the model (:class:`~warpblob.tree.Node`) the volume was made
+            from, for tool contact through its field and :meth:`field` (a
+            :class:`~warpblob.mesh.TetMesh` does not keep it); or give it to
+            :meth:`add_tool`.
 
     Attributes:
         time: simulated time (s), advanced by :meth:`step`.
-        dt, gravity, damping, ground, tolerance, max_iterations: as given.
+        dt, gravity, damping, ground, tolerance, max_iterations, linear_solver: as given.
         elements: the :class:`~warpblob.sim.Elements` (flat per-tet and per-node data).
-        stats: the last step's ``seconds`` per stage (``assembly``: right-hand
-            side and preconditioner; ``cg``; ``update``: positions and
-            contacts; ``elements``: the rotation and force pass; ``check``:
-            divergence), their ``seconds_total``, ``cg_iterations`` (last and
+        stats: the last step's ``seconds`` per stage (``contact``: the tools;
+            ``assembly``: right-hand side and preconditioner; ``cg``;
+            ``update``: positions and ground contacts; ``elements``: the
+            rotation and force pass; ``check``: divergence), their
+            ``seconds_total``, ``cg_iterations`` (last and
             ``cg_iterations_total``), the CG ``residual`` and
-            ``relative_residual``, ``steps``, ``tet_count``, ``node_count``, ``device``.
+            ``relative_residual``, ``steps``, ``tet_count``, ``node_count``,
+            ``device``; with tools, ``contact``: the last step's ``seconds``
+            of tool contact by stage (``locate``: tool poses, boxes, BVH refit,
+            location and the nearest-node search; ``field``: the field evaluation; ``spread``:
+            forces, the sort by node and the k-ring spread), their
+            ``seconds_total``, ``samples`` and ``penetrating`` (sample counts).
 
     Raises:
         SimulationError: a bad parameter, a NaN in the mesh or the inputs, a
@@ -133,10 +158,15 @@ class Simulation:
         ground=None,
         tolerance: float = 1e-4,
         max_iterations: int = 200,
+        linear_solver: str = "pcg",
         device=None,
         threads: int | None = None,
+        model=None,
     ):
         self.threads = check_threads(threads)
+        if linear_solver not in LINEAR_SOLVERS:
+            raise SimulationError(f"linear_solver must be one of {', '.join(LINEAR_SOLVERS)}, got {linear_solver!r}")
+        self.linear_solver = linear_solver
         self.device = resolve_device(device)
         if isinstance(volume, TetStructure):
             self._structure = volume
@@ -180,6 +210,8 @@ class Simulation:
         self.fixed = fixed
         self.time = 0.0
         self._embedding: Embedding | None = None
+        self.model = model
+        self._contact: Contact | None = None
         self.stats: dict = {
             "steps": 0,
             "seconds": dict.fromkeys(_STAGES, 0.0),
@@ -221,7 +253,7 @@ class Simulation:
         self._moved = wp.zeros(N, dtype=wp.vec3, device=dev)
         self._flags = wp.zeros(N, dtype=wp.uint8, device=dev)
         self._states = [ElementState(T, N, dev), ElementState(T, N, dev)]
-        self._solver = ImplicitSolver(e, self._flags, self._states, self.threads)
+        self._solver = ImplicitSolver(e, self._flags, self._states, self.threads, self.linear_solver)
         self._mass = e.mass.numpy().astype(np.float64)
         # |m|_2: the right-hand side's norm per unit velocity, the scale of CG's absolute tolerance
         self._momentum = float(np.sqrt(np.sum(self._mass**2)))
@@ -415,7 +447,10 @@ class Simulation:
     def step(self, n: int = 1) -> None:
         """Advance ``n`` steps of ``dt``.
 
-        Each step: assemble the right-hand side and the block-Jacobi
+        Each step: move the tools to their poses at the end of the step and
+        compute their contact forces and penalty stiffness (``contact``, when
+        a tool's box meets the tissue's; :meth:`add_tool`); assemble the
+        right-hand side and the block-Jacobi
         preconditioner from the element pass at the current positions
         (``assembly``); solve the backward-Euler system by CG (``cg``);
         move the nodes, with ground contact (``update``); run the element
@@ -426,8 +461,9 @@ class Simulation:
         A step diverged when a position or velocity is not finite, or when
         its kinetic plus elastic energy exceeds ``BLOWUP`` (10) times the
         budget: the previous kinetic plus elastic energy, plus the work that
-        gravity, the external forces and the constraints (moved fixed nodes,
-        ground lifts; at the end force) did in the step. Backward Euler only
+        gravity, the external forces, the tools' contact forces and the
+        constraints (moved fixed nodes, ground lifts; at the end force) did
+        in the step. Backward Euler only
         dissipates, so a legitimate step stays within 1x.
 
         Raises:
@@ -448,14 +484,19 @@ class Simulation:
         state, new_state = self._states[cur], self._states[nxt]
         ground = self.ground or (0.0, 0.0)
 
+        tc = self._sync()
+        touching = self._contact is not None and self._contact.update(x0, self._solver, self.time, h)
+        # the penalty enters as h^2 K_c (no Rayleigh term); 0 leaves every contact branch out
+        c_contact = h * h if touching else 0.0
         t0 = self._sync()
         self._solver.assemble(state, x0, v0, self._target, self._external, self.gravity, h, 1.0 + h * alpha,
                               h * beta + h * h, v1, ground=None if self.ground is None else ground[0],
-                              friction=ground[1], moving=self._moving)  # fmt: skip
+                              friction=ground[1], moving=self._moving, c_contact=c_contact)  # fmt: skip
         t1 = self._sync()
         atol = self.tolerance * 1e-6 * self._size / h * self._momentum
         iterations, residual, rhs_norm = self._solver.solve(state, v1, 1.0 + h * alpha, h * beta + h * h,
-                                                            self.tolerance, atol, self.max_iterations)  # fmt: skip
+                                                            self.tolerance, atol, self.max_iterations,
+                                                            c_contact)  # fmt: skip
         if not (np.isfinite(residual) and np.isfinite(rhs_norm)):
             raise SimulationError(
                 f"step at t = {self.time:.6g} diverged: the linear solve overflowed (residual {residual:.6g}, "
@@ -470,15 +511,23 @@ class Simulation:
         new_state.compute(e, x1, th)
         t4 = self._sync()
         # host sync: the divergence check reads the new state
-        energy = self._check(x0, x1, v1, new_state)
+        energy = self._check(x0, x1, v1, new_state, touching)
+        if touching:
+            self._contact.finish(v1, h)
         t5 = time.perf_counter()
 
         self._cur = nxt
         self._budget = energy
         self.time += h
         self._moving = False
-        laps = dict(zip(_STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)))
+        laps = dict(zip(_STAGES, (t0 - tc, t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)))
         s = self.stats
+        if self._contact is not None:
+            c = self._contact.stats
+            total = s.setdefault("contact", {"seconds_total": dict.fromkeys(c["seconds"], 0.0)})["seconds_total"]
+            s["contact"] = {"seconds": dict(c["seconds"]),
+                            "seconds_total": {name: total[name] + c["seconds"][name] for name in total},
+                            "samples": c["samples"], "penetrating": c["penetrating"] if touching else 0}  # fmt: skip
         s["steps"] += 1
         s["seconds"] = laps
         s["seconds_total"] = {name: s["seconds_total"][name] + laps[name] for name in _STAGES}
@@ -487,7 +536,7 @@ class Simulation:
         s["residual"] = residual
         s["relative_residual"] = residual / rhs_norm if rhs_norm > 0 else 0.0
 
-    def _check(self, x0, x1, v1, state) -> float:
+    def _check(self, x0, x1, v1, state, touching: bool = False) -> float:
         xa, xb, vb = x0.numpy().astype(np.float64), x1.numpy().astype(np.float64), v1.numpy().astype(np.float64)
         bad = np.flatnonzero(~(np.isfinite(xb).all(axis=1) & np.isfinite(vb).all(axis=1)))
         if bad.size:
@@ -501,6 +550,9 @@ class Simulation:
         work = abs(float(np.dot(self._mass, dx @ g)))
         work += abs(float(np.sum(self._external.numpy().astype(np.float64) * dx)))
         work += float(np.abs(np.sum(state.node_force.numpy().astype(np.float64) * self._moved.numpy(), axis=1)).sum())
+        if touching:
+            # the tools are driven: the work their contact forces did on the tissue
+            work += float(np.abs(np.sum(self._solver.contact_force.numpy().astype(np.float64) * dx, axis=1)).sum())
         floor = 1e-12 * float(self._mass.sum()) * (self._size / self.dt) ** 2
         budget = self._budget + work
         if not np.isfinite(energy) or energy > BLOWUP * budget + floor:
@@ -572,20 +624,27 @@ class Simulation:
         self._refresh()
         return {"iterations": iterations, "update": update, "residual": residual, "cg_iterations": cg_total}
 
-    def record(self, path, steps: int, *, every: int = 1, progress: bool | None = None):
+    def record(self, path, steps: int, *, every: int = 1, progress: bool | None = None,
+               meters_per_unit: float | None = None, on_frame=None):  # fmt: skip
         """Step ``steps`` times and write the motion as a time-sampled USD stage: the tet mesh and the bound surface.
 
         The stage (``/Simulation/Volume``, a ``UsdGeom.TetMesh``, and
         ``/Simulation/Surface`` when a surface is bound) holds the current
         state at time code 0 and one frame per ``every`` steps after it, at
         ``1 / (every dt)`` time codes per second (it plays in real time). The
-        file is written once, atomically, at the end.
+        file is written once, atomically, at the end. With tools, each is an
+        Xform at ``/Simulation/Tools/Tool<k>`` with its pose sampled per frame
+        (:mod:`warpblob.io._anim_tools`), and the surface's display colour is
+        sampled too, the contact area highlighted (:meth:`surface_contact`).
 
         Args:
             path: ``.usda`` / ``.usdc`` / ``.usd`` file; its directory must exist.
             steps: number of steps (>= 1).
             every: steps per recorded frame (>= 1).
             progress: show a progress bar (default: on a terminal, for runs of 100 steps or more).
+            meters_per_unit: the stage's metres per model unit (default: the writer's, one centimetre).
+            on_frame: called as ``on_frame(index)`` after each recorded frame
+                (index 0 is the state before the first step), e.g. to render pictures.
 
         Returns:
             ``path`` as a :class:`pathlib.Path`.
@@ -596,7 +655,7 @@ class Simulation:
             OSError: the directory does not exist or USD could not write.
         """
         from .._progress import progress as bar
-        from ..io._anim import AnimationWriter
+        from ..io._anim_tools import ToolAnimationWriter
 
         for name, value in (("steps", steps), ("every", every)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
@@ -604,10 +663,17 @@ class Simulation:
         live = self.elements.tets_host[self.elements.alive_host]
         faces = TetMesh(self.elements.rest_host, live).surface_faces() if len(live) else np.zeros((0, 3), np.int32)
         surface = self._embedding.mesh if self._embedding is not None else None
-        writer = AnimationWriter(path, live, faces, surface, fps=1.0 / (self.dt * every))
+        options = {} if meters_per_unit is None else {"meters_per_unit": float(meters_per_unit)}
+        writer = ToolAnimationWriter(path, live, faces, surface, tools=[r.tool for r in self.tools],
+                                     fps=1.0 / (self.dt * every), **options)  # fmt: skip
+        shade = surface is not None and bool(self.tools)
 
         def frame():
-            writer.add(self.positions, None if surface is None else self.surface_positions())
+            colors = highlight(surface.colors, self.surface_contact()) if shade else None
+            writer.add(self.positions, None if surface is None else self.surface_positions(),
+                       poses=[r.pose(self.time) for r in self.tools], surface_colors=colors)  # fmt: skip
+            if on_frame is not None:
+                on_frame(writer.frame_count - 1)
 
         frame()
         show = progress if progress is not None else steps >= 100
@@ -670,6 +736,8 @@ class Simulation:
         self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count
         if self._embedding is not None:
             self._embedding = embed(e, self._embedding.mesh, threads=self.threads)
+        if self._contact is not None:
+            self._contact.bind(e)
 
     # -- embedded surface ------------------------------------------------------
 
@@ -687,6 +755,11 @@ class Simulation:
         self._embedding = embed(self.elements, mesh, threads=self.threads)
         return self._embedding
 
+    @property
+    def embedding(self) -> Embedding | None:
+        """The bound surface's :class:`~warpblob.sim._embed.Embedding` (its ``mesh`` is the rest surface), or None."""
+        return self._embedding
+
     def surface_positions(self) -> np.ndarray:
         """(V, 3) float32 deformed vertices of the bound surface (one kernel).
 
@@ -696,6 +769,163 @@ class Simulation:
         if self._embedding is None:
             raise SimulationError("surface_positions: bind a surface first with sim.surface(mesh)")
         return interpolate(self._embedding, self.elements, self._x[self._cur], threads=self.threads)
+
+    # -- tools -----------------------------------------------------------------
+
+    def add_tool(self, tool, path, *, stiffness: float, kring: int = 2, contact: str = "field", model=None,
+                 spacing: float | None = None) -> ToolContact:  # fmt: skip
+        """Add a rigid tool on a path: each :meth:`step` moves it to ``path.pose(t + dt)`` and applies its contact.
+
+        The contact follows the thesis' field-based model, with the field
+        carried by the deformation (:mod:`warpblob.sim._contact`: sampling,
+        penetration, force, k-ring spread and the implicit penalty).
+
+        Args:
+            tool: a :class:`~warpblob.tools.Tool` (``Probe``, ``Scalpel``, ``Drill``...).
+            path: its :class:`~warpblob.tools.Path` (poses over time, s).
+            stiffness: penalty stiffness per unit tool area, > 0: N per model
+                unit of penetration per model unit squared of tool surface
+                (a face of area ``A`` pressed ``d`` deep pushes with about ``s A d``).
+            kring: rings of nodes the force spreads over (weights
+                ``(k + 1 - r) / (k + 1)`` for the ring ``r``), >= 0.
+            contact: ``"field"`` (the deformation-mapped field, located in the
+                deformed tets) or ``"nearest"`` (the thesis: the rest field
+                at the world position, the force at the nearest node).
+            model: the model whose field gives the contact (default: the
+                simulation's ``model``); the first one given is kept.
+            spacing: tool sampling distance, model units (default: the
+                mesh's median edge length).
+
+        Returns:
+            The :class:`~warpblob.sim._contact.ToolContact` record (its index
+            in :attr:`tools` numbers the tool in :meth:`contact_force`).
+
+        Raises:
+            ToolError: a bad tool, path, stiffness (<= 0), kring, contact or
+                spacing, naming the value (a path with non-increasing times or
+                NaN poses and an open tool mesh are refused when made, by
+                :class:`~warpblob.tools.Path` and :class:`~warpblob.tools.Tool`).
+            SimulationError: no model, or a model other than the simulation's.
+
+        Example:
+            >>> import warpblob as wb
+            >>> from warpblob.tools import Path, Probe
+            >>> model = wb.Box((0, 0, 0), (0.5, 0.5, 0.2), 0.3)
+            >>> sim = wb.Simulation(wb.tetrahedralize(model, cellsize=0.15), young=1e5, poisson=0.45,
+            ...                     density=1000.0, gravity=(0, 0, 0), model=model)
+            >>> top = float(sim.positions[:, 2].max())
+            >>> path = Path.line((0, 0, top + 0.1), (0, 0, top - 0.1), 0.2)
+            >>> probe = sim.add_tool(Probe(0.4), path, stiffness=1e7)
+            >>> sim.step(12)
+            >>> bool(sim.contact_force(0)[2] > 0)  # the tissue pushes the probe back up
+            True
+        """
+        if model is not None:
+            if self.model is not None and model is not self.model:
+                raise SimulationError("add_tool: the simulation already has a model; tools share the tissue's model")
+            self.model = model
+        if self.model is None:
+            raise SimulationError(
+                "add_tool: field contact needs the model the volume was made from: Simulation(..., model=m) "
+                "or add_tool(..., model=m) (a TetMesh does not keep it)"
+            )
+        return self._contact_state().add(tool, path, stiffness=stiffness, kring=kring, contact=contact,
+                                         spacing=spacing)  # fmt: skip
+
+    def _contact_state(self) -> Contact:
+        if self._contact is None:
+            if self.model is None:
+                raise SimulationError("field: give the model the volume was made from: Simulation(..., model=m)")
+            self._contact = Contact(self.elements, self.model, self.threads)
+        return self._contact
+
+    @property
+    def tools(self) -> tuple:
+        """The added tools' :class:`~warpblob.sim._contact.ToolContact` records, in the order added."""
+        return tuple(self._contact.tools) if self._contact is not None else ()
+
+    def _tool_index(self, tool) -> int:
+        count = len(self.tools)
+        if isinstance(tool, ToolContact):
+            for i, r in enumerate(self.tools):
+                if r is tool:
+                    return i
+            raise ToolError("the tool record belongs to another simulation")
+        if isinstance(tool, bool) or not isinstance(tool, (int, np.integer)) or not 0 <= tool < count:
+            raise ToolError(f"tool must be an index in [0, {count}) or a record of sim.tools, got {tool!r}")
+        return int(tool)
+
+    def contact_force(self, tool=None) -> np.ndarray:
+        """Force the tissue exerted on a tool in the last step (what a haptic device renders), e.g. N.
+
+        Summed over the tool's penetrating samples at the end of the step
+        (the penalty linearized as in the solve); zero for a step without contact.
+
+        Args:
+            tool: an index into :attr:`tools` or its record; None: every tool.
+
+        Returns:
+            (3,) float64, or (K, 3) for every tool.
+        """
+        forces = self._contact.forces.copy() if self._contact is not None else np.zeros((0, 3))
+        return forces if tool is None else forces[self._tool_index(tool)]
+
+    def contact_points(self, tool=None) -> np.ndarray:
+        """(P, 3) float32 world positions of the tool samples that penetrated the tissue in the last step.
+
+        Args:
+            tool: an index into :attr:`tools` or its record; None: every tool.
+        """
+        if self._contact is None:
+            return np.zeros((0, 3), dtype=np.float32)
+        return self._contact.penetrating(None if tool is None else self._tool_index(tool))
+
+    def contact_nodes(self) -> np.ndarray:
+        """Sorted (C,) int indices of the nodes the tools pushed in the last step (after the k-ring spread)."""
+        return np.flatnonzero(self._solver.contact_weight.numpy() > 0)
+
+    def surface_contact(self) -> np.ndarray:
+        """(V,) float32 in [0, 1]: how strongly the tools pushed each vertex of the bound surface in the last step.
+
+        The nodes' contact stiffness interpolated at each vertex (its tet's
+        barycentric weights, clamped), over its largest value: 0 away from
+        the contact, 1 at its strongest. For pictures.
+
+        Raises:
+            SimulationError: no surface is bound.
+        """
+        if self._embedding is None:
+            raise SimulationError("surface_contact: bind a surface first with sim.surface(mesh)")
+        emb = self._embedding
+        weight = self._solver.contact_weight.numpy()
+        bary = np.clip(emb.bary, 0.0, None)
+        vertex = (weight[self.elements.tets_host[emb.tet]] * bary).sum(axis=1) / bary.sum(axis=1)
+        top = vertex.max(initial=0.0)
+        return (vertex / top if top > 0 else vertex).astype(np.float32)
+
+    def field(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """The model's field carried by the deformation, and its gradient, at world ``points``.
+
+        A point in a deformed tet maps to the rest point with the same
+        barycentric coordinates; the field is the model's there, the
+        gradient the rest gradient pushed forward by the tet's deformation
+        gradient (``F^-T grad F``). This is the field the tools' contact
+        reads. Points outside the deformed volume get 0 and a zero gradient.
+
+        Args:
+            points: (P, 3) world positions.
+
+        Returns:
+            ``(values (P,), gradients (P, 3))`` float32.
+
+        Raises:
+            SimulationError: no model was given, or bad points.
+        """
+        shape = np.shape(points)
+        if len(shape) != 2 or shape[1] != 3:
+            raise SimulationError(f"field: points must have shape (P, 3), got {shape}")
+        pts = self._nodal("field: points", points, shape[0])
+        return self._contact_state().field(self._x[self._cur], pts, self.threads)
 
     def __repr__(self) -> str:
         return (

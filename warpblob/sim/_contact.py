@@ -1,0 +1,562 @@
+"""Rigid tools pressing the simulated tissue: contact through the implicit field, carried by the deformation.
+
+The source thesis (Shirazian 2014, chapter 6; SPEC section 5.2) detects
+contact with the model's field: a tool vertex where ``F >= 0.5`` penetrates,
+by the inverse falloff ``dist(F)``, and pushes with
+``CF = normalize(grad F + T) * dist * s`` at the nearest volume node, spread
+over its first and second rings with decreasing weights. The thesis reads
+the field of the *rest* model at the vertex's world position, so once the
+tissue has moved the contact no longer matches it. Here (``contact="field"``,
+the default) the field is carried by the deformation instead:
+
+1. **Samples.** A tool's vertices are too sparse for a coarse probe on a
+   fine mesh, so its faces are sampled at the mesh's edge length (the median
+   rest edge of the live tets): :meth:`~warpblob.tools.Tool.sample_surface`
+   (every vertex, points dividing every edge, the interior nodes of a
+   barycentric grid on every face). Each sample stands for an equal share
+   of the area of every face it lies on (:func:`sample_areas`), so the
+   forces do not depend on the sampling density.
+2. **Location.** Each step the tool moves to ``path.pose(t + dt)`` (the
+   pose at the end of the step, which the implicit step solves for); each
+   sample is located in the deformed tets (a ``wp.Bvh`` over the current
+   boxes of the boundary layer, the tets with a node on the boundary,
+   refit each step: a tool presses the surface and the penalty keeps its
+   samples within a fraction of an edge of it, so the layer, at least an
+   edge deep, holds every sample in contact, at a cost that grows with the
+   surface, not the volume; a sample that sinks deeper in one step is not
+   found) and mapped to rest space by its barycentric coordinates; a
+   sample just outside the tets (within half an edge) maps through its
+   nearest tet, since the tets' flat boundary faces lie inside the model's
+   curved surface and the contact must not jump there.
+3. **Field.** The model's field and gradient at the rest point
+   (:func:`warpblob.field.evaluate`); the gradient is pushed forward by the
+   tet's deformation gradient (``F^-T grad F``), so the contact surface is
+   the deformed surface.
+4. **Force.** A sample with ``F >= 0.5`` penetrates by ``depth`` (model
+   units: the inverse falloff of SPEC 1.1 scaled by the radius of the lone
+   primitive with that field value and slope,
+   :func:`~warpblob.sim._contact_kernels.signed_depth`; negative outside);
+   its force on the tissue is ``CF = normalize(n + T) * psi(depth) * s * a``
+   with ``n`` the unit deformed gradient, ``T`` the tool's unit travel over
+   the step, ``s`` the stiffness and ``a`` the sample's area. The contact
+   law ``psi`` is the depth, its onset smoothed over the first ``2 band``
+   of depth (``band`` a tenth of the mesh's edge length;
+   :func:`~warpblob.sim._contact_kernels.penalty`, C1, zero outside), so
+   samples join and leave the contact gradually. The force goes to the
+   containing tet's nodes by (clamped) barycentric weights.
+5. **Spread.** Each node's share is spread over its k-ring (the nodes
+   within ``k`` edges, the rings of :meth:`warpblob.mesh.TetStructure.k_ring`):
+   a node ``r`` edges away gets the weight ``(k + 1 - r) / (k + 1)`` (1, 2/3,
+   1/3 for ``k = 2``), normalized over the ring so that the force is kept.
+   The CSR of the spread is built once per topology (:func:`ring_spread`) and
+   applied by a gather kernel.
+
+``contact="nearest"`` is the thesis' variant, for comparison: the rest field
+at the sample's world position (no deformation map), the force at the
+nearest node (of the boundary layer's, by a ``wp.Bvh`` over them), then the
+same spread. Its depth does not fall as the tissue gives way, so its force
+is a load rather than a spring: the tissue yields until its elastic force
+balances ``s A depth``, and a stiffness that holds the field contact at the
+surface crushes the tissue under it (the scenarios give it the tissue's own
+scale, :mod:`warpblob.scenarios`).
+
+**Stiffness and the implicit step.** ``s`` is a stiffness per unit area, N
+per model unit of penetration per model unit squared of tool surface (N/m^3
+in SI units): a flat probe face of area ``A`` pressed ``d`` into the tissue
+pushes back with about ``s A d``. A penalty that stiff would be unstable
+as an explicit force at ``dt = 1/60`` (``dt^2 s a / m`` is far above 1 on
+the surface nodes), so it goes inside the implicit solve (as Müller &
+Gross 2004 treat the elastic forces): each sample adds the stiffness
+``s a psi' d d^T`` along its force direction ``d`` (lumped onto its nodes
+by the same weights and spread alike); the step solves with
+``f_c - K_c h v'``, the contact force linearized at the end of the step,
+and stays stable for any ``s`` (the tests run ``1e5`` times the tissue's
+own stiffness at ``dt = 1/60``). Without the smoothed onset, a stiff
+penalty switched on at the surface makes nearly static tissue (backward
+Euler is close to a static solve when the tissue's stiffness outweighs its
+mass over a step) alternate between two states from step to step, one
+pressed out of the tool and one relaxed into it. Nodes without contact see
+no change in any arithmetic: a tool that never touches the tissue leaves
+the simulation bit-identical.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from .._errors import SimulationError, ToolError
+from .._linearize import linearize
+from ..field import evaluate
+from ..mesh import TetMesh
+from ..tools import Path, Tool
+from . import _contact_kernels as ck
+from . import _kernels as k
+from ._solver import NODE_GRAIN, split_launch
+
+__all__ = ["ToolContact", "Contact", "CONTACT_MODES", "HIGHLIGHT", "highlight", "sample_areas", "ring_spread"]
+
+#: the contact law's onset band, in edge lengths
+BAND = 0.1
+#: how far outside the deformed volume a sample still reads the field through its nearest tet, in edge lengths
+MARGIN = 0.5
+#: colour of the contact area in pictures and recorded stages
+HIGHLIGHT = np.array([1.0, 0.82, 0.1])
+#: the contact modes of :meth:`~warpblob.Simulation.add_tool`
+CONTACT_MODES = {"field": ck.FIELD, "nearest": ck.NEAREST}
+#: samples per launch piece: a sample costs well under a microsecond, a split launch tens of microseconds
+_SAMPLE_GRAIN = 2048
+
+
+def highlight(colors: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(V, 3) float32 ``colors`` turned towards :data:`HIGHLIGHT` where the contact ``weight`` (V,) in [0, 1] is.
+
+    The square root of the weight mixes, so the faint rim of the spread
+    still shows.
+    """
+    a = np.sqrt(np.clip(weight, 0.0, 1.0))[:, None] * 0.9
+    return ((1.0 - a) * np.asarray(colors, dtype=np.float64) + a * HIGHLIGHT).astype(np.float32)
+
+
+def sample_areas(tool: Tool, points: np.ndarray) -> np.ndarray:
+    """(S,) area each sample stands for: every face's area shared equally by the samples lying on it.
+
+    A sample on an edge or at a corner takes shares of every face it lies
+    on; the shares add up to the tool's surface area.
+    """
+    v = tool.vertices
+    f = tool.faces.astype(np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    cross = np.cross(b - a, c - a)
+    twice = np.linalg.norm(cross, axis=1)
+    normal = cross / twice[:, None]
+    size = float(np.ptp(v, axis=0).max())
+    # barycentric coordinates of every sample in every face's plane, (S, F)
+    rel = points[:, None, :] - a[None]
+    height = np.abs(np.einsum("sfi,fi->sf", rel, normal))
+    u = np.einsum("sfi,fi->sf", np.cross(c - b, points[:, None, :] - b[None]), normal) / twice
+    w = np.einsum("sfi,fi->sf", np.cross(a - c, points[:, None, :] - c[None]), normal) / twice
+    tol = 1e-9
+    on = (height <= tol * size) & (u >= -tol) & (w >= -tol) & (u + w <= 1 + tol)
+    count = on.sum(axis=0)
+    return (on * np.where(count > 0, 0.5 * twice / np.maximum(count, 1), 0.0)).sum(axis=1)
+
+
+def _unique(keys: np.ndarray) -> np.ndarray:
+    """Sorted distinct ``keys`` by a sort (numpy's hashing ``np.unique`` is several times slower on these)."""
+    keys = np.sort(keys)
+    return keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if len(keys) else keys
+
+
+def ring_spread(tets: np.ndarray, alive: np.ndarray, node_count: int, k: int):
+    """The k-ring spread as a CSR by target node: ``(offsets (N + 1,), nodes, weights)`` (int32, int32, float32).
+
+    Row ``j`` lists, in ascending order, every node ``c`` within ``k`` edges
+    of ``j`` (``j`` itself included: the rings of
+    :meth:`~warpblob.mesh.TetStructure.k_ring` over the live tets' edges) with
+    ``W[j, c] = w(r) / Z_c``: ``w(r) = (k + 1 - r) / (k + 1)`` for ``r`` the
+    ring of ``j`` around ``c`` and ``Z_c = sum_j w(r(j, c))``, so each
+    node's force is spread without loss. Rings are symmetric, so row ``c``
+    also lists the nodes ``c`` spreads to. Breadth-first search over all
+    nodes at once (vectorized numpy: a set-up cost, paid again only when the
+    topology changes).
+    """
+    N = int(node_count)
+    if k == 0:
+        nodes = np.arange(N, dtype=np.int32)
+        return np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32)
+    live = np.asarray(tets)[np.asarray(alive, dtype=bool)].astype(np.int64)
+    pairs = live[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
+    keys = _unique(np.concatenate([pairs[:, 0] * N + pairs[:, 1], pairs[:, 1] * N + pairs[:, 0]]))
+    adj_rows, adj_cols = keys // N, keys % N
+    adj_offsets = np.searchsorted(adj_rows, np.arange(N + 1))
+    degree = np.diff(adj_offsets)
+    nodes = np.arange(N, dtype=np.int64)
+    seen = nodes * N + nodes
+    found = [(seen, np.zeros(N, dtype=np.int64))]
+    frontier = seen
+    for ring in range(1, k + 1):
+        source, node = frontier // N, frontier % N
+        count = degree[node]
+        start = np.repeat(adj_offsets[node] - (np.cumsum(count) - count), count)
+        reached = np.repeat(source, count) * N + adj_cols[start + np.arange(count.sum())]
+        reached = _unique(reached)
+        # ``seen`` is sorted: a key is new where the search does not land on itself
+        slot = np.minimum(np.searchsorted(seen, reached), len(seen) - 1)
+        reached = reached[seen[slot] != reached]
+        found.append((reached, np.full(len(reached), ring, dtype=np.int64)))
+        seen = np.sort(np.concatenate([seen, reached]))
+        frontier = reached
+    keys = np.concatenate([f[0] for f in found])
+    rings = np.concatenate([f[1] for f in found])
+    order = np.argsort(keys, kind="stable")
+    keys, rings = keys[order], rings[order]
+    rows, cols = keys // N, keys % N
+    w = (k + 1 - rings) / (k + 1)
+    total = np.bincount(rows, weights=w, minlength=N)
+    offsets = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
+    return offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32)
+
+
+@dataclass(frozen=True, eq=False)
+class ToolContact:
+    """A tool added to a simulation (:meth:`~warpblob.Simulation.add_tool`).
+
+    Attributes:
+        tool: the :class:`~warpblob.tools.Tool`.
+        path: its :class:`~warpblob.tools.Path`.
+        stiffness: N per model unit of penetration per model unit squared of tool surface.
+        kring: rings the force spreads over.
+        contact: ``"field"`` or ``"nearest"``.
+        spacing: sample spacing, model units.
+        samples: (S, 3) float64 local sample points.
+        area: (S,) float64 tool area per sample, model units squared.
+    """
+
+    tool: Tool
+    path: Path
+    stiffness: float
+    kring: int
+    contact: str
+    spacing: float
+    samples: np.ndarray
+    area: np.ndarray
+
+    def pose(self, t: float):
+        """The tool's :class:`~warpblob.tools.Pose` at time ``t`` (s)."""
+        return self.path.pose(t)
+
+
+def check_tool(tool, path, stiffness, kring, contact) -> tuple[float, int]:
+    """ToolError naming the first bad argument of ``add_tool``; returns (stiffness, kring)."""
+    # a Tool is closed and a Path finite and increasing once made (their constructors refuse the rest, naming
+    # the value), and both are immutable
+    if not isinstance(tool, Tool):
+        raise ToolError(f"add_tool: tool must be a warpblob.tools.Tool (Probe, Scalpel, Drill...), got {tool!r}")
+    if not isinstance(path, Path):
+        raise ToolError(f"add_tool: path must be a warpblob.tools.Path, got {path!r}")
+    number = isinstance(stiffness, (int, float, np.integer, np.floating)) and not isinstance(stiffness, bool)
+    if not number or not np.isfinite(stiffness) or stiffness <= 0:
+        raise ToolError(f"add_tool: stiffness must be a finite number > 0, got {stiffness!r}")
+    if isinstance(kring, bool) or not isinstance(kring, (int, np.integer)) or kring < 0:
+        raise ToolError(f"add_tool: kring must be a non-negative integer, got {kring!r}")
+    if contact not in CONTACT_MODES:
+        raise ToolError(f"add_tool: contact must be one of {', '.join(CONTACT_MODES)}, got {contact!r}")
+    return float(stiffness), int(kring)
+
+
+class Contact:
+    """The contact state of one simulation: its tools, their samples, the search structures and buffers.
+
+    Args:
+        elements: the simulation's :class:`~warpblob.sim.Elements`.
+        model: the model whose field the contact reads.
+        threads: CPU threads (None: the default).
+    """
+
+    def __init__(self, elements, model, threads=None):
+        self.model = model
+        self.threads = threads
+        self.tools: list[ToolContact] = []
+        lm = linearize(model)
+        placed = lm.radius > 0
+        lower, upper = lm.bounds
+        self.model_bounds = np.stack([lower, upper])
+        # the longest penetration length: twice the widest primitive (its radius over its map's stretch), or
+        # the model's diagonal without radii
+        widest = (lm.radius[placed] / lm.stretch[placed]).max() if placed.any() else 0.5 * np.linalg.norm(upper - lower)
+        self.reach = float(2.0 * widest)
+        self.forces = np.zeros((0, 3))
+        self.counts = np.zeros(0, dtype=np.int64)
+        self.deepest = np.zeros(0)
+        self.active = False
+        self.stats = {"seconds": {"locate": 0.0, "field": 0.0, "spread": 0.0}, "samples": 0, "penetrating": 0}
+        self.bind(elements)
+
+    # -- set-up ----------------------------------------------------------------
+
+    def bind(self, elements) -> None:
+        """(Re)bind to the element data: after a topology change the rings and search structures are rebuilt."""
+        self.elements = elements
+        e = elements
+        self.device = e.device
+        live = e.alive_host & (e.volume.numpy() > 0)
+        if not live.any():
+            raise SimulationError("contact: the volume has no live tet")
+        t = e.tets_host[live]
+        edges = e.rest_host[t[:, [1, 2, 3, 2, 3, 3]]] - e.rest_host[t[:, [0, 0, 0, 1, 1, 2]]]
+        self.edge = float(np.median(np.linalg.norm(edges, axis=2)))
+        self.band = BAND * self.edge
+        # the boundary layer: the tets with a node on the boundary
+        near = np.zeros(e.node_count, dtype=bool)
+        near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
+        live_ids = np.flatnonzero(live)
+        layer = live_ids[near[t].any(axis=1)].astype(np.int32)
+        self._layer = wp.array(layer, dtype=wp.int32, device=self.device)
+        self._layer_tets = wp.array(e.tets_host[layer], dtype=wp.vec4i, device=self.device)
+        self._layer_volume = wp.array(e.volume.numpy()[layer], dtype=float, device=self.device)
+        self.layer_count = len(layer)
+        layer_nodes = np.zeros(e.node_count, dtype=bool)
+        layer_nodes[e.tets_host[layer].ravel()] = True
+        # the nearest-node search sees the layer's nodes only (the others get boxes far away)
+        self._layer_mass = wp.array(np.where(layer_nodes, e.mass.numpy(), 0.0).astype(np.float32), dtype=float,
+                                    device=self.device)  # fmt: skip
+        self._rings: dict[int, tuple] = {}
+        self._tet_bvh = None
+        self._node_bvh = None
+        self._build_buffers()
+
+    def add(self, tool, path, *, stiffness, kring, contact, spacing=None) -> ToolContact:
+        """Check and sample a tool (:meth:`~warpblob.Simulation.add_tool` says what the arguments are)."""
+        stiffness, kring = check_tool(tool, path, stiffness, kring, contact)
+        if spacing is None:
+            spacing = self.edge
+        elif (isinstance(spacing, bool) or not isinstance(spacing, (int, float, np.integer, np.floating))
+              or not np.isfinite(spacing) or spacing <= 0):  # fmt: skip
+            raise ToolError(f"add_tool: spacing must be a finite number > 0, got {spacing!r}")
+        samples = tool.sample_surface(float(spacing))
+        record = ToolContact(tool, path, stiffness, kring, contact, float(spacing), samples,
+                             sample_areas(tool, samples))  # fmt: skip
+        self.tools.append(record)
+        self._build_buffers()
+        return record
+
+    def _ring(self, k: int) -> tuple:
+        if k not in self._rings:
+            e = self.elements
+            self._rings[k] = ring_spread(e.tets_host, e.alive_host & (e.volume.numpy() > 0), e.node_count, k)
+        return self._rings[k]
+
+    def _build_buffers(self) -> None:
+        dev, e = self.device, self.elements
+        N = e.node_count
+        tools = self.tools
+        K = len(tools)
+        sizes = [len(r.samples) for r in tools]
+        S = int(sum(sizes))
+        self.sample_count = S
+        self._tool_first = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+        krings = sorted({r.kring for r in tools})
+        self.group_count = max(1, len(krings))
+        vec = lambda n: wp.zeros(n, dtype=wp.vec3, device=dev)  # noqa: E731
+        self._local = wp.array(np.concatenate([r.samples for r in tools]).astype(np.float32) if S else
+                               np.zeros((0, 3), np.float32), dtype=wp.vec3, device=dev)  # fmt: skip
+        self._area = wp.array(np.concatenate([r.area for r in tools]).astype(np.float32) if S else
+                              np.zeros(0, np.float32), dtype=float, device=dev)  # fmt: skip
+        self._point_tool = wp.array(np.repeat(np.arange(K, dtype=np.int32), sizes), dtype=wp.int32, device=dev)
+        self._tool_first_wp = wp.array(self._tool_first, dtype=wp.int32, device=dev)
+        self._modes = wp.array(np.array([CONTACT_MODES[r.contact] for r in tools] or [0], np.int32), dtype=wp.int32,
+                               device=dev)  # fmt: skip
+        self._groups = wp.array(np.array([krings.index(r.kring) for r in tools] or [0], np.int32), dtype=wp.int32,
+                                device=dev)  # fmt: skip
+        self._stiffness = wp.array(np.array([r.stiffness for r in tools] or [0.0], np.float32), dtype=float,
+                                   device=dev)  # fmt: skip
+        self._poses = wp.zeros(max(K, 1), dtype=wp.transform, device=dev)
+        self._travel = vec(max(K, 1))
+        self._world, self._query = vec(S), vec(S)
+        self._cell = wp.zeros(S, dtype=wp.int32, device=dev)
+        self._bary = wp.zeros(S, dtype=wp.vec4, device=dev)
+        self._depth = wp.zeros(S, dtype=float, device=dev)
+        self._law = wp.zeros(S, dtype=wp.vec2, device=dev)
+        self._direction = vec(S)
+        self._entry_node = wp.zeros(4 * S, dtype=wp.int32, device=dev)
+        self._entry_weight = wp.zeros(4 * S, dtype=float, device=dev)
+        # radix sort buffers: twice the entries
+        self._keys = wp.zeros(8 * S, dtype=wp.int32, device=dev)
+        self._entries = wp.zeros(8 * S, dtype=wp.int32, device=dev)
+        G = self.group_count
+        rings = [self._ring(kr) for kr in krings] or [self._ring(0)]
+        base = np.cumsum([0] + [len(r[1]) for r in rings[:-1]])
+        self._ring_offsets = wp.array(np.concatenate([r[0] + b for r, b in zip(rings, base)]), dtype=wp.int32,
+                                      device=dev)  # fmt: skip
+        self._ring_nodes = wp.array(np.concatenate([r[1] for r in rings]), dtype=wp.int32, device=dev)
+        self._ring_weights = wp.array(np.concatenate([r[2] for r in rings]), dtype=float, device=dev)
+        self._source_force = vec(G * N)
+        self._source_block = wp.zeros(G * N, dtype=wp.mat33, device=dev)
+        self._source_weight = wp.zeros(G * N, dtype=float, device=dev)
+        self._mark = wp.zeros(N, dtype=wp.uint8, device=dev)
+        self._totals = vec(max(K, 1))
+        self._counts = wp.zeros(max(K, 1), dtype=wp.int32, device=dev)
+        self._deepest = wp.zeros(max(K, 1), dtype=float, device=dev)
+        self.forces = np.zeros((K, 3))
+        self.counts = np.zeros(K, dtype=np.int64)
+        self.deepest = np.zeros(K)
+        self.stats["samples"] = S
+
+    def _refit(self, x: wp.array) -> None:
+        """Boxes of the current tets (and nodes, for the nearest mode) and their BVHs, built once and refit."""
+        e, dev, th = self.elements, self.device, self.threads
+        modes = {r.contact for r in self.tools}
+        if "field" in modes:
+            L = self.layer_count
+            if self._tet_bvh is None:
+                self._tet_lowers = wp.empty(L, dtype=wp.vec3, device=dev)
+                self._tet_uppers = wp.empty(L, dtype=wp.vec3, device=dev)
+            split_launch(k.tet_bounds_kernel, L, [x, self._layer_tets, self._layer_volume],
+                         [self._tet_lowers, self._tet_uppers], dev, th, NODE_GRAIN)  # fmt: skip
+            if self._tet_bvh is None:
+                self._tet_bvh = wp.Bvh(self._tet_lowers, self._tet_uppers)
+            else:
+                self._tet_bvh.refit()
+        if "nearest" in modes:
+            if self._node_bvh is None:
+                self._node_lowers = wp.empty(e.node_count, dtype=wp.vec3, device=dev)
+                self._node_uppers = wp.empty(e.node_count, dtype=wp.vec3, device=dev)
+            split_launch(ck.node_bounds_kernel, e.node_count, [x, self._layer_mass],
+                         [self._node_lowers, self._node_uppers], dev, th, NODE_GRAIN)  # fmt: skip
+            if self._node_bvh is None:
+                self._node_bvh = wp.Bvh(self._node_lowers, self._node_uppers)
+            else:
+                self._node_bvh.refit()
+
+    def _locate(self, x: wp.array, point_tool, local, poses, modes, world, query, cell, bary) -> None:
+        e = self.elements
+        # a nearest-mode-only simulation has no tet BVH, and its kernel branch never queries one
+        tet_bvh = self._tet_bvh.id if self._tet_bvh is not None else wp.uint64(0)
+        split_launch(ck.locate_points_kernel, local.shape[0],
+                     [tet_bvh, self._layer, local, point_tool, poses, modes, x, e.rest, e.tets, e.volume,
+                      MARGIN * self.edge],
+                     [world, query, cell, bary], self.device, self.threads, _SAMPLE_GRAIN)  # fmt: skip
+
+    # -- per step --------------------------------------------------------------
+
+    def _sync(self) -> float:
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+        return time.perf_counter()
+
+    def update(self, x: wp.array, solver, t: float, h: float) -> bool:
+        """Move the tools to their poses at ``t + h`` and write the contact forces and stiffness into ``solver``.
+
+        Returns whether any tool may touch the tissue this step (its box,
+        grown by the sample spacing, meets the tissue's current box, or the
+        model's box for the nearest mode); when none does, nothing runs and
+        the contact arrays are zero.
+        """
+        t0 = self._sync()
+        after = [r.pose(t + h) for r in self.tools]
+        before = [r.pose(t) for r in self.tools]
+        # host sync: the tissue's box for the broad phase (SPEC 5.2: AABB of tool vs model)
+        xs = x.numpy()
+        # column by column: numpy reduces an (N, 3) array over axis 0 about 20x slower
+        tissue = np.array([[c.min() for c in xs.T], [c.max() for c in xs.T]]) if len(xs) else np.zeros((2, 3))
+        near = False
+        for r, pose in zip(self.tools, after):
+            box = r.tool.bounds(pose) + np.array([[-1.0], [1.0]]) * r.spacing
+            other = tissue if r.contact == "field" else self.model_bounds
+            near |= bool(np.all(box[0] <= other[1]) and np.all(other[0] <= box[1]))
+        if not near:
+            self.clear(solver)
+            self.stats["seconds"] = {"locate": 0.0, "field": 0.0, "spread": 0.0}
+            return False
+        self._poses.assign(np.array([p.numpy() for p in after], dtype=np.float32))
+        step = np.array([a.position - b.position for a, b in zip(after, before)])
+        length = np.linalg.norm(step, axis=1, keepdims=True)
+        self._travel.assign(np.divide(step, length, out=np.zeros_like(step), where=length > 0).astype(np.float32))
+        self._refit(x)
+        self._locate(x, self._point_tool, self._local, self._poses, self._modes, self._world, self._query, self._cell,
+                     self._bary)  # fmt: skip
+        t1 = self._sync()
+        values, gradients, _ = evaluate(self.model, self._query, threads=self.threads)
+        t2 = self._sync()
+        if self._node_bvh is not None:
+            split_launch(ck.nearest_nodes_kernel, self.sample_count,
+                         [self._node_bvh.id, self._world, values, self._point_tool, self._modes, x, self.edge],
+                         [self._cell], self.device, self.threads, _SAMPLE_GRAIN)  # fmt: skip
+        t3 = self._sync()
+        self._spread(x, values, gradients, solver)
+        t4 = self._sync()
+        self.active = True
+        # the nearest-node search (after the field) is location too
+        self.stats["seconds"] = {"locate": (t1 - t0) + (t3 - t2), "field": t2 - t1, "spread": t4 - t3}
+        return True
+
+    def _spread(self, x, values, gradients, solver) -> None:
+        e, dev, th = self.elements, self.device, self.threads
+        N, S, G = e.node_count, self.sample_count, self.group_count
+        split_launch(ck.sample_forces_kernel, S,
+                     [self._point_tool, self._cell, self._bary, values, gradients, self._area, self._modes,
+                      self._groups, self._stiffness, self._travel, x, e.tets, e.dm_inv, self.reach, self.band, G,
+                      N],
+                     [self._depth, self._law, self._direction, self._entry_node, self._entry_weight, self._keys,
+                      self._entries], dev, th, _SAMPLE_GRAIN)  # fmt: skip
+        wp.utils.radix_sort_pairs(self._keys, self._entries, 4 * S)
+        self._source_weight.zero_()
+        self._mark.zero_()
+        split_launch(ck.gather_sources_kernel, 4 * S,
+                     [self._keys, self._entries, self._entry_weight, self._law, self._direction, self._ring_offsets,
+                      self._ring_nodes, 4 * S, N, G * N],
+                     [self._source_force, self._source_block, self._source_weight, self._mark], dev, th,
+                     _SAMPLE_GRAIN)  # fmt: skip
+        split_launch(ck.spread_forces_kernel, N,
+                     [self._mark, self._ring_offsets, self._ring_nodes, self._ring_weights, self._source_force,
+                      self._source_block, self._source_weight, G, N],
+                     [solver.contact_force, solver.contact_block, solver.contact_weight], dev, th,
+                     NODE_GRAIN)  # fmt: skip
+
+    def finish(self, v: wp.array, h: float) -> None:
+        """The force on each tool at the end of the step, from the new velocities ``v`` (one host sync)."""
+        K = len(self.tools)
+        split_launch(ck.tool_forces_kernel, K,
+                     [self._tool_first_wp, self._depth, self._law, self._direction, self._entry_node,
+                      self._entry_weight, v, float(h)],
+                     [self._totals, self._counts, self._deepest], self.device, self.threads, 1)  # fmt: skip
+        # host sync: the tools' forces (what a haptic device renders)
+        self.forces = self._totals.numpy()[:K].astype(np.float64)
+        self.counts = self._counts.numpy()[:K].astype(np.int64)
+        self.deepest = self._deepest.numpy()[:K].astype(np.float64)
+        self.stats["penetrating"] = int(self.counts.sum())
+
+    def clear(self, solver) -> None:
+        """Zero the contact arrays after a step with contact (an idle step then changes nothing)."""
+        if self.active:
+            solver.contact_force.zero_()
+            solver.contact_block.zero_()
+            solver.contact_weight.zero_()
+            self._depth.fill_(-1.0e30)
+            self.forces = np.zeros((len(self.tools), 3))
+            self.counts = np.zeros(len(self.tools), dtype=np.int64)
+            self.deepest = np.zeros(len(self.tools))
+            self.stats["penetrating"] = 0
+        self.active = False
+
+    # -- queries ---------------------------------------------------------------
+
+    def penetrating(self, tool: int | None = None) -> np.ndarray:
+        """(P, 3) float32 world positions of the samples (of one tool, or all) penetrating this step."""
+        if not self.active:
+            return np.zeros((0, 3), dtype=np.float32)
+        inside = self._depth.numpy() > 0
+        if tool is not None:
+            keep = np.zeros_like(inside)
+            keep[self._tool_first[tool] : self._tool_first[tool + 1]] = True
+            inside &= keep
+        return self._world.numpy()[inside].copy()
+
+    def field(self, x: wp.array, points: np.ndarray, threads=None) -> tuple[np.ndarray, np.ndarray]:
+        """The deformation-mapped field and its gradient at world ``points`` (0 outside the deformed volume)."""
+        dev, e = self.device, self.elements
+        n = len(points)
+        # a BVH of its own: a query leaves the contact state as the last step left it
+        lowers = wp.empty(e.tet_count, dtype=wp.vec3, device=dev)
+        uppers = wp.empty(e.tet_count, dtype=wp.vec3, device=dev)
+        split_launch(k.tet_bounds_kernel, e.tet_count, [x, e.tets, e.volume], [lowers, uppers], dev, threads,
+                     NODE_GRAIN)  # fmt: skip
+        bvh = wp.Bvh(lowers, uppers)
+        local = wp.array(points.astype(np.float32), dtype=wp.vec3, device=dev)
+        pose = wp.array(np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32), dtype=wp.transform, device=dev)
+        zeros = wp.zeros(n, dtype=wp.int32, device=dev)
+        world, query = wp.empty(n, dtype=wp.vec3, device=dev), wp.empty(n, dtype=wp.vec3, device=dev)
+        cell, bary = wp.empty(n, dtype=wp.int32, device=dev), wp.empty(n, dtype=wp.vec4, device=dev)
+        split_launch(ck.locate_points_kernel, n,
+                     [bvh.id, wp.array(np.arange(e.tet_count, dtype=np.int32), dtype=wp.int32, device=dev), local,
+                      zeros, pose, wp.zeros(1, dtype=wp.int32, device=dev), x, e.rest, e.tets, e.volume, 0.0],
+                     [world, query, cell, bary], dev, threads, _SAMPLE_GRAIN)  # fmt: skip
+        values, gradients, _ = evaluate(self.model, query, threads=threads)
+        split_launch(ck.map_gradients_kernel, n, [x, e.tets, e.dm_inv, cell], [values, gradients], dev, threads,
+                     _SAMPLE_GRAIN)  # fmt: skip
+        # host sync: results as numpy
+        return values.numpy().copy(), gradients.numpy().reshape(n, 3).copy()
