@@ -433,11 +433,13 @@ def main(argv=None):
     ap.add_argument("--match", type=float, help="equal-accuracy target for err mesh, at least warpblob's (0.02)")
     ap.add_argument("--timeout", type=float, help="seconds before a solver process is stopped (default 1800)")
     ap.add_argument("--direct-max", type=int, help="largest mesh (tets) for a direct static solve (60000)")
+    ap.add_argument("--contact-sizes", help="tumor tet counts of the probe contact timing, '' for none "
+                    "(default 10000,50000,200000)")  # fmt: skip
     full = {"models": "beam,tumor", "sizes": "10000,50000,200000", "peers": "newton,pbat", "threads": "1,2",
             "ladder_models": "beam,tumor", "frames": 180, "budget": 300.0, "match": 0.02, "timeout": 1800.0,
-            "direct_max": 60_000, "repeat": 5}  # fmt: skip
+            "direct_max": 60_000, "repeat": 5, "contact_sizes": "10000,50000,200000"}  # fmt: skip
     quick = {**full, "sizes": "2000", "ladder_models": "beam", "frames": 120, "budget": 8.0, "timeout": 300.0,
-             "repeat": 3}  # fmt: skip
+             "repeat": 3, "contact_sizes": "3000"}  # fmt: skip
     args = arguments(ap, full, quick, argv)
     sizes = sorted(int(s) for s in args.sizes.split(",") if s)
     models = [m for m in args.models.split(",") if m]
@@ -458,6 +460,7 @@ def main(argv=None):
                 ladder_here = i == 0 and model in args.ladder_models.split(",")
                 rows += bench_mesh(p, path, refs, args, peers, matched, ladders, i == 0, ladder_here)
     report(rows, matched)
+    contact = contact_rows([int(c) for c in args.contact_sizes.split(",") if c], args.threads)
     goals = targets(rows)
     bench.finish(
         {
@@ -478,8 +481,52 @@ def main(argv=None):
             "ladders": ladders,
             "targets": goals,
             "rows": rows,
+            "contact": contact,
         }
     )
+
+
+def contact_timing(tets: int, *, contact: str = "field", threads: int = 1, steps: int = 120, timed: int = 20) -> dict:
+    """Contact ms per step of the probe on the tumor at about ``tets`` tets, by stage (medians of ``timed`` steps
+    once the probe is in: tet location, field evaluation, force spreading), warm."""
+    import statistics
+
+    import warpblob as wb
+    from warpblob.scenarios import probe_tumor
+
+    h = 0.2 * (wb.tetrahedralize(wb.scenes.tumor(), cellsize=0.2).tet_count / tets) ** (1 / 3)
+    sim = probe_tumor(h, steps, contact=contact, threads=threads)
+    sim.step(int(0.7 * steps) - timed)
+    stages = {"locate": [], "field": [], "spread": [], "total": [], "step": []}
+    for _ in range(timed):
+        sim.step()
+        for k, sec in sim.stats["contact"]["seconds"].items():
+            stages[k].append(1e3 * sec)
+        stages["total"].append(1e3 * sim.stats["seconds"]["contact"])
+        stages["step"].append(1e3 * sum(sim.stats["seconds"].values()))
+    out = {f"{k}_ms": round(statistics.median(v), 3) for k, v in stages.items()}
+    out.update(tets=sim.tet_count, contact=contact, threads=threads, samples=sim.stats["contact"]["samples"],
+               penetrating=sim.stats["contact"]["penetrating"])  # fmt: skip
+    return out
+
+
+def contact_rows(sizes: list[int], threads_text: str) -> list[dict]:
+    """The probe-on-tumor contact cost (issue 13's target: at most 2 ms per step at 50K tets), printed as a table."""
+    if not sizes:
+        return []
+    rows = [
+        contact_timing(n, contact=mode, threads=int(t))
+        for n in sizes
+        for mode in ("field", "nearest")
+        for t in threads_text.split(",")
+        if t
+    ]
+    print("\ncontact, probe on the tumor (warm, medians of 20 steps with the probe in), ms per step:")
+    columns = [("tets", "tets", "d"), ("contact", "contact", "s"), ("threads", "thr", "d"),
+               ("locate_ms", "locate", ".3f"), ("field_ms", "field", ".3f"), ("spread_ms", "spread", ".3f"),
+               ("total_ms", "contact", ".3f"), ("step_ms", "whole step", ".2f")]  # fmt: skip
+    print(table(rows, columns))
+    return rows
 
 
 def report(rows: list[dict], matched: dict) -> None:
