@@ -23,12 +23,14 @@ from ._parallel import set_thread_count, thread_count
 from .field import VolumeEstimate, color, evaluate, field, gradient, monte_carlo_volume
 from . import mesh
 from .mesh import SurfaceMesh, TetMesh, TetQuality, TetStructure, quality
+from .io._meshfile import load_mesh
 from .polygonize import polygonize
 from . import sim
 from .sim import Simulation
 from .tetrahedralize import tetrahedralize
 from . import tools
 from . import scenarios
+from .slice import slice
 from .tree import (
     ISO_DISTANCE,
     ISO_VALUE,
@@ -125,4 +127,6 @@ __all__ = [
     "scenes",
     "tools",
     "scenarios",
+    "slice",
+    "load_mesh",
 ]

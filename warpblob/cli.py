@@ -1,4 +1,5 @@
-"""The ``warpblob`` command line: ``demo``, ``info``, ``field``, ``polygonize``, ``tetrahedralize``, ``quality``."""
+"""The ``warpblob`` command line: ``demo``, ``info``, ``field``, ``polygonize``, ``tetrahedralize``, ``quality``,
+``simulate``, ``scenario``, ``slice``."""
 
 from __future__ import annotations
 
@@ -338,6 +339,9 @@ def _parser() -> argparse.ArgumentParser:
     from .scenarios._command import add_scenario_parser
 
     add_scenario_parser(sub)
+    from .slice._command import add_slice_parser
+
+    add_slice_parser(sub)
     return p
 
 

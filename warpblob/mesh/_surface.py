@@ -76,6 +76,10 @@ class SurfaceMesh:
         normals: (V, 3) float32 unit outward normals.
         colors: (V, 3) float32 RGB in [0, 1].
         stats: facts about how the mesh was made (counts, seconds per stage).
+        is_cap: (F,) bool, faces that cap a planar cut (:func:`warpblob.slice`),
+            or None for a mesh no slice made.
+        cap_colors: (C, 3) float32 RGB of the cap faces in face order
+            (``C = is_cap.sum()``), or None.
 
     Example:
         >>> import warpblob as wb
@@ -89,6 +93,8 @@ class SurfaceMesh:
     normals: np.ndarray
     colors: np.ndarray
     stats: dict = field(default_factory=dict)
+    is_cap: np.ndarray | None = None
+    cap_colors: np.ndarray | None = None
 
     @property
     def vertex_count(self) -> int:
@@ -210,6 +216,12 @@ class SurfaceMesh:
             lines.append(f"  area {self.area():.6g}, enclosed volume {self.volume():.6g}")
         return "\n".join(lines)
 
+    def slice(self, origin=None, normal=None, **options):
+        """Cut by a plane into two closed, capped halves (or by ``planes=`` into pieces): :func:`warpblob.slice`."""
+        from ..slice import slice as slice_mesh
+
+        return slice_mesh(self, origin, normal, **options)
+
     def numpy(self) -> dict:
         """The arrays as a dict of numpy arrays."""
         return {"vertices": self.vertices, "faces": self.faces, "normals": self.normals, "colors": self.colors}
@@ -229,4 +241,6 @@ class SurfaceMesh:
         poly.point_data["Normals"] = self.normals
         poly.point_data["RGB"] = (np.clip(self.colors, 0, 1) * 255).astype(np.uint8)
         poly.point_data.active_normals_name = "Normals"
+        if self.is_cap is not None:
+            poly.cell_data["is_cap"] = np.asarray(self.is_cap, dtype=bool)
         return poly
