@@ -138,7 +138,9 @@ tests), so the mesh keeps the uniform mesh's bounds. One kernel per level for
 the level tests and per level for the tets (count, scan, emit); the per-level
 sizes and offsets are numpy bookkeeping of a few integers. Measured (2-core
 CPU): tumor at 0.05 with interior 0.2: 383,394 tets uniform, 236,966 graded,
-dihedral angles [17.59 deg, 144.68 deg] both (same time, about 0.15 s); a
+dihedral angles [17.59 deg, 144.68 deg] both (0.18 s and 0.20 s, the whole
+call by wall clock, warm, best of three: the graded levels cost what the
+fewer tets save); a
 lone Point (radius 1, surface radius 0.4541) at 1/60 with interior 4/60:
 1,033,200 tets uniform, 457,848 graded, [17.21 deg, 149.0 deg] both, nodes
 182,275 against 87,141; cake at 0.05 with interior 0.4: 2.82M
