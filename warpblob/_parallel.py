@@ -23,7 +23,7 @@ from ._errors import WarpblobError
 # the lowest module that every kernel-launching part of warpblob imports
 _compile.install()
 
-__all__ = ["launch", "thread_count", "set_thread_count", "check_threads"]
+__all__ = ["launch", "submit", "thread_count", "set_thread_count", "check_threads"]
 
 _threads: int | None = None
 #: guards the pool and its size; submissions to the pool happen under it too
@@ -70,7 +70,7 @@ def set_thread_count(n: int | None) -> None:
     _threads = check_threads(n, "thread count")
 
 
-def _submit(work, n: int) -> list[concurrent.futures.Future]:
+def submit(work, n: int) -> list[concurrent.futures.Future]:
     """Run ``work`` on ``n`` pool threads, growing the pool to ``n`` if needed.
 
     Submitting under the lock means no caller can hold a pool that another
@@ -141,6 +141,6 @@ def launch(
     # compile (or load from the cache) here, once: the first launch of every
     # thread would otherwise compile the same module concurrently, n times over
     wp.load_module(kernel.module, device=device)
-    done, _ = concurrent.futures.wait(_submit(work, n))
+    done, _ = concurrent.futures.wait(submit(work, n))
     for f in done:
         f.result()

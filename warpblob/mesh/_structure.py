@@ -59,6 +59,7 @@ __all__ = [
     "edge_key",
     "edge_table_find",
     "lookup_edge",
+    "csr",
 ]
 
 KINDS = ("node", "edge", "face", "cell")
@@ -353,7 +354,7 @@ def _group_sorted(keys: wp.array, count: int, device, threads) -> tuple[wp.array
     return groups, int(groups[count - 1 : count].numpy()[0])
 
 
-def _csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, threads) -> tuple[np.ndarray, np.ndarray]:
+def csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, threads) -> tuple[np.ndarray, np.ndarray]:
     """CSR of ``count`` (row, col) pairs (arrays of 2 ``count``, for the radix sort); lists keep col order.
 
     Sorting replaces the usual count / scan / fill: filling needs an atomic
@@ -709,12 +710,12 @@ class TetStructure:
         rows = wp.empty(4 * E, dtype=wp.int32, device=dev)
         cols = wp.empty(4 * E, dtype=wp.int32, device=dev)
         launch(emit_node_edges_kernel, E, [edge_nodes, edge_alive, N], [rows, cols], dev, threads)
-        self._node_edge_offsets, self._node_edge_list = _csr(rows, cols, 2 * E, N, dev, threads)
+        self._node_edge_offsets, self._node_edge_list = csr(rows, cols, 2 * E, N, dev, threads)
 
         rows = wp.empty(6 * F, dtype=wp.int32, device=dev)
         cols = wp.empty(6 * F, dtype=wp.int32, device=dev)
         launch(emit_edge_faces_kernel, F, [face_edges, face_alive, E], [rows, cols], dev, threads)
-        self._edge_face_offsets, self._edge_face_list = _csr(rows, cols, 3 * F, E, dev, threads)
+        self._edge_face_offsets, self._edge_face_list = csr(rows, cols, 3 * F, E, dev, threads)
 
         self._build_table(dev, edge_nodes, edge_alive)
 

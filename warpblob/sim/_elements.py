@@ -17,7 +17,7 @@ import warp as wp
 
 from .._errors import SimulationError
 from .._parallel import launch
-from ..mesh._structure import _csr
+from ..mesh._structure import csr
 from . import _kernels as k
 
 __all__ = ["Elements", "material_values", "lame"]
@@ -279,7 +279,7 @@ class Elements:
         cols_wp = wp.zeros(2 * count, dtype=wp.int32, device=dev)
         rows_wp.assign(np.concatenate([rows, np.zeros(count, dtype=np.int32)]))
         cols_wp.assign(np.concatenate([np.arange(count, dtype=np.int32), np.zeros(count, dtype=np.int32)]))
-        offsets, corners = _csr(rows_wp, cols_wp, count, N, dev, self.threads)
+        offsets, corners = csr(rows_wp, cols_wp, count, N, dev, self.threads)
         self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
         self.node_corners = wp.array(corners, dtype=wp.int32, device=dev)
         self.mass = wp.zeros(N, dtype=float, device=dev)

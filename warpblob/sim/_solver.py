@@ -53,7 +53,7 @@ import threading
 import numpy as np
 import warp as wp
 
-from .._parallel import _submit, launch, thread_count
+from .._parallel import submit, launch, thread_count
 from . import _kernels as k
 
 __all__ = ["ElementState", "ImplicitSolver", "Prepared", "split_launch"]
@@ -119,7 +119,7 @@ class Prepared:
                 item.launch()
 
         # the calling thread runs the first piece while the pool runs the others
-        futures = _submit(work, len(rest))
+        futures = submit(work, len(rest))
         first.launch()
         for f in futures:
             f.result()
