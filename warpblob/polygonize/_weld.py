@@ -273,17 +273,21 @@ def contract(
     alive = np.ones(len(cur), dtype=bool)
     live = np.arange(len(cur))
     loaded = candidate.copy()  # the candidates whose stars are all in ``live``
-    outside = valence - np.bincount(start.reshape(-1), minlength=n)  # each vertex's triangles not in the patch
+    inside = np.bincount(start.reshape(-1), minlength=n)
+    outside = valence - inside  # each vertex's triangles not in the patch
+    valence = outside + inside  # kept up to date as triangles go and change
     while True:
         tris = cur[live]
-        valence = outside + np.bincount(cur[alive].reshape(-1), minlength=n)
         frm, to = tris.reshape(-1), tris[:, [1, 2, 0]].reshape(-1)
-        keys, uses = np.unique(np.minimum(frm, to) * n + np.maximum(frm, to), return_counts=True)
+        keys, uses = _unique_counts(np.minimum(frm, to) * n + np.maximum(frm, to))
         eu, ew = keys // n, keys % n  # undirected edges, eu < ew
         open_end = np.zeros(n, dtype=bool)
         open_end[eu[uses != 2]] = open_end[ew[uses != 2]] = True
-        length = np.linalg.norm(points[eu] - points[ew], axis=1)
-        c = np.flatnonzero(loaded[eu] & loaded[ew] & (length <= limit) & ~open_end[eu] & ~open_end[ew])
+        # lengths of the edges between loaded closed ends only (each row's norm is the same alone)
+        c = np.flatnonzero(loaded[eu] & loaded[ew] & ~open_end[eu] & ~open_end[ew])
+        length = np.linalg.norm(points[eu[c]] - points[ew[c]], axis=1)
+        short = length <= limit
+        c, length = c[short], length[short]
         if len(c) == 0:
             break
         keep, move = eu[c], ew[c]
@@ -302,35 +306,35 @@ def contract(
         node_owner = owner[order]
         # the merged vertex is the lower end, else the upper one, where no corner then ends farther
         # than limit from its first vertex (earlier rounds checked the others) and no triangle turns over
-        rows = np.arange(len(order))
-        origin = points[start[live[row[order]], slot[order]]]
-        old = before[order]
-        n0 = np.cross(points[old[:, 1]] - points[old[:, 0]], points[old[:, 2]] - points[old[:, 0]])
+        # both choices at once: rows [0, m) onto the lower end, [m, 2m) onto the upper one
+        m = len(order)
+        slot_order = slot[order]
+        merged_order = merged[order]
+        origin = points[start[live[row[order]], slot_order]]
+        n0 = _normals(points, before[order])
         flat = ~np.any(n0 != 0.0, axis=1)  # a zero-area triangle has no orientation to keep
-
-        def onto(end):
-            new = merged[order].copy()
-            new[rows, slot[order]] = end[node_owner]
-            n1 = np.cross(points[new[:, 1]] - points[new[:, 0]], points[new[:, 2]] - points[new[:, 0]])
-            far = np.sum((points[end[node_owner]] - origin) ** 2, axis=1) > limit * limit
-            turned = (np.einsum("ij,ij->i", n0, n1) <= 0.0) & ~flat
-            return new, np.bincount(node_owner[far | turned], minlength=len(c)) == 0
-
-        after, lower = onto(keep)
-        upper_after, upper = onto(move)
+        new = np.concatenate([merged_order, merged_order])
+        moved = np.concatenate([keep[node_owner], move[node_owner]])
+        new[np.arange(2 * m), np.concatenate([slot_order, slot_order])] = moved
+        n1 = _normals(points, new)
+        far = np.sum((points[moved] - np.concatenate([origin, origin])) ** 2, axis=1) > limit * limit
+        turned = (np.einsum("ij,ij->i", np.concatenate([n0, n0]), n1) <= 0.0) & ~np.concatenate([flat, flat])
+        bad = far | turned
+        lower = np.bincount(node_owner[bad[:m]], minlength=len(c)) == 0
+        upper = np.bincount(node_owner[bad[m:]], minlength=len(c)) == 0
         ok &= lower | upper
-        after = np.where(lower[node_owner, None], after, upper_after)
+        after = np.where(lower[node_owner, None], new[:m], new[m:])
         # every other vertex keeps three triangles or none
         lost = (owner[~stay, None] * n + merged[~stay]).reshape(-1)
         lost = lost[merged[~stay].reshape(-1) != np.repeat(keep[owner[~stay]], 3)]
-        pair, times = np.unique(lost, return_counts=True)
+        pair, times = _unique_counts(lost)
         left = valence[pair % n] - times
         ok[(pair // n)[(left > 0) & (left < 3)]] = False
         go = np.flatnonzero(ok)
         if len(go) == 0:
             break
         chosen = np.zeros(len(c), dtype=bool)
-        chosen[go[_apart(keys[c[go]], length[c[go]], keep[go], move[go], eu, ew, n)]] = True
+        chosen[go[_apart(keys[c[go]], length[go], keep[go], move[go], eu, ew, n)]] = True
         # a vertex next to two of them loses triangles to both: it too keeps three or none
         while True:
             taken = chosen[pair // n]
@@ -340,30 +344,41 @@ def contract(
             if not np.any(clash):
                 break
             chosen[(pair // n)[clash]] = False
-        alive[live[row[~stay & chosen[owner]]]] = False
+        gone = live[row[~stay & chosen[owner]]]  # (the stars taken are disjoint: each row once)
+        np.subtract.at(valence, cur[gone].reshape(-1), 1)
+        alive[gone] = False
         pick = chosen[node_owner]
-        cur[live[row[order[pick]]]] = after[pick]
+        changed = live[row[order[pick]]]
+        np.subtract.at(valence, cur[changed].reshape(-1), 1)
+        cur[changed] = after[pick]
+        np.add.at(valence, after[pick].reshape(-1), 1)
         # a short edge next round has an end among this round's and the other a candidate next
         # to it: work on those candidates' stars only
         live = live[alive[live]]
-        near = np.unique(cur[live][np.any(np.isin(cur[live], np.concatenate([keep, move])), axis=1)])
+        tris = cur[live]
+        ends = np.zeros(n, dtype=bool)
+        ends[keep] = ends[move] = True
+        near = tris[np.any(ends[tris], axis=1)].reshape(-1)
         loaded[:] = False
-        loaded[near[candidate[near]]] = True
-        live = live[np.any(loaded[cur[live]], axis=1)]
+        loaded[near] = candidate[near]
+        live = live[np.any(loaded[tris], axis=1)]
     return cur, alive
 
 
 def _stars(tris: np.ndarray, keep: np.ndarray, move: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """The triangles at either end of each edge ``(keep[i], move[i])``, once
     each: (owner edge, row of ``tris``) pairs."""
-    corners = tris.reshape(-1)
+    ends = np.zeros(n, dtype=bool)
+    ends[keep] = ends[move] = True
+    sub = np.flatnonzero(np.any(ends[tris], axis=1))  # the rows at an end, in order: the same stars
+    corners = tris[sub].reshape(-1)
     by_vertex = np.argsort(corners, kind="stable")
     here = np.bincount(corners, minlength=n)
     first = np.cumsum(here) - here
     o1, at1 = _expand(first[keep], here[keep])
     o2, at2 = _expand(first[move], here[move])
-    both = np.any(tris[by_vertex[at2] // 3] == keep[o2, None], axis=1)  # listed at the kept end already
-    return np.concatenate([o1, o2[~both]]), by_vertex[np.concatenate([at1, at2[~both]])] // 3
+    both = np.any(tris[sub[by_vertex[at2] // 3]] == keep[o2, None], axis=1)  # listed at the kept end already
+    return np.concatenate([o1, o2[~both]]), sub[by_vertex[np.concatenate([at1, at2[~both]])] // 3]
 
 
 def _one_fan(owner: np.ndarray, u: np.ndarray, w: np.ndarray, stay: np.ndarray, n: int, count: int):
@@ -375,12 +390,17 @@ def _one_fan(owner: np.ndarray, u: np.ndarray, w: np.ndarray, stay: np.ndarray, 
     order = np.flatnonzero(stay)[np.argsort(owner[stay] * n + u[stay], kind="stable")]
     node_owner = owner[order]
     starts, ends = node_owner * n + u[order], node_owner * n + w[order]
-    ok[node_owner[_repeated(starts) | _repeated(ends) | ~_isin(ends, starts)]] = False
+    ok[node_owner[_repeated_sorted(starts) | _repeated(ends) | ~_isin_sorted(ends, starts)]] = False
     succ = np.minimum(np.searchsorted(starts, ends), max(len(order) - 1, 0))
     succ = np.where(starts[succ] == ends, succ, np.arange(len(order)))  # (a broken link stays in its owner)
     label = np.arange(len(order))
     for _ in range(int(np.ceil(np.log2(max(len(order), 2)))) + 1):  # pointer doubling: the least edge of each cycle
-        label = np.minimum(label, label[succ])
+        least = np.minimum(label, label[succ])
+        if np.array_equal(least, label):
+            # converged: on every cycle (the links that pass) each label is its cycle's least
+            # already; what a broken link's rows get does not matter, its owner is refused
+            break
+        label = least
         succ = succ[succ]
     ok &= np.bincount(node_owner[label == np.arange(len(order))], minlength=count) <= 1
     ok[node_owner[np.bincount(label, minlength=len(order))[label] < 3]] = False
@@ -413,10 +433,53 @@ def _isin(query: np.ndarray, keys: np.ndarray) -> np.ndarray:
     return keys[np.minimum(np.searchsorted(keys, query), len(keys) - 1)] == query
 
 
+def _unique_counts(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(keys, return_counts=True)`` for an int64 array, without its overhead."""
+    keys = np.sort(keys)
+    if len(keys) == 0:
+        return keys, np.zeros(0, dtype=np.int64)
+    first = np.empty(len(keys), dtype=bool)
+    first[0] = True
+    np.not_equal(keys[1:], keys[:-1], out=first[1:])
+    at = np.flatnonzero(first)
+    return keys[at], np.diff(at, append=len(keys))
+
+
+def _isin_sorted(query: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """:func:`_isin` for ``keys`` sorted already."""
+    if len(keys) == 0:
+        return np.zeros(len(query), dtype=bool)
+    return keys[np.minimum(np.searchsorted(keys, query), len(keys) - 1)] == query
+
+
 def _repeated(keys: np.ndarray) -> np.ndarray:
     """Whether each of ``keys`` occurs more than once."""
-    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    return counts[inverse] > 1
+    order = np.argsort(keys, kind="stable")
+    out = np.empty(len(keys), dtype=bool)
+    out[order] = _repeated_sorted(keys[order])
+    return out
+
+
+def _repeated_sorted(keys: np.ndarray) -> np.ndarray:
+    """:func:`_repeated` for ``keys`` sorted already."""
+    out = np.zeros(len(keys), dtype=bool)
+    same = keys[1:] == keys[:-1]
+    out[1:] |= same
+    out[:-1] |= same
+    return out
+
+
+def _normals(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(T, 3) cross products (b - a) x (c - a) of the triangles ``(a, b, c)``,
+    the same floating-point operations as ``np.cross`` without its overhead."""
+    a = points[tris[:, 0]]
+    e1 = points[tris[:, 1]] - a
+    e2 = points[tris[:, 2]] - a
+    out = np.empty_like(e1)
+    out[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    out[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    out[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    return out
 
 
 def _expand(first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
