@@ -57,6 +57,7 @@ def test_simulate_command_writes_a_time_sampled_stage(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
     stage = Usd.Stage.Open(str(out))
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0  # SI constants: the lengths are metres
     assert stage.GetStartTimeCode() == 0 and stage.GetEndTimeCode() == 6
     tets = [p for p in stage.Traverse() if p.IsA(UsdGeom.TetMesh)]
     meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]

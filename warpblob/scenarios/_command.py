@@ -84,7 +84,7 @@ def run_scenario(args) -> int:
     stage = out / f"{args.name}.{'usdc' if args.usdc else 'usda'}"
     began = time.perf_counter()
     try:
-        sim.record(stage, args.steps, every=args.every, progress=True, meters_per_unit=1.0, on_frame=on_frame)
+        sim.record(stage, args.steps, every=args.every, progress=True, on_frame=on_frame)
     except OSError as exc:
         raise WarpblobError(str(exc)) from None
     seconds = time.perf_counter() - began

@@ -642,7 +642,8 @@ class Simulation:
             steps: number of steps (>= 1).
             every: steps per recorded frame (>= 1).
             progress: show a progress bar (default: on a terminal, for runs of 100 steps or more).
-            meters_per_unit: the stage's metres per model unit (default: the writer's, one centimetre).
+            meters_per_unit: the stage's metres per model unit (default 1: the simulator's
+                constants are SI, so its lengths are metres).
             on_frame: called as ``on_frame(index)`` after each recorded frame
                 (index 0 is the state before the first step), e.g. to render pictures.
 
@@ -663,9 +664,9 @@ class Simulation:
         live = self.elements.tets_host[self.elements.alive_host]
         faces = TetMesh(self.elements.rest_host, live).surface_faces() if len(live) else np.zeros((0, 3), np.int32)
         surface = self._embedding.mesh if self._embedding is not None else None
-        options = {} if meters_per_unit is None else {"meters_per_unit": float(meters_per_unit)}
         writer = ToolAnimationWriter(path, live, faces, surface, tools=[r.tool for r in self.tools],
-                                     fps=1.0 / (self.dt * every), **options)  # fmt: skip
+                                     fps=1.0 / (self.dt * every),
+                                     meters_per_unit=1.0 if meters_per_unit is None else float(meters_per_unit))  # fmt: skip
         shade = surface is not None and bool(self.tools)
 
         def frame():
