@@ -26,3 +26,4 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch):
     sim = namespace["sim"]
     assert (tmp_path / "tumor_drop.usdc").exists() and sim.time > 1.0
     assert np.all(sim.positions[:, 2] >= -1.6 - 1e-3)  # on the ground, not through it
+    assert namespace["force"][2] > 0 and abs(namespace["change"]) < 0.01  # pushed down, volume kept
