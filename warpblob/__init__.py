@@ -29,6 +29,7 @@ from . import sim
 from .sim import Simulation
 from .tetrahedralize import tetrahedralize
 from . import tools
+from . import cut
 from . import scenarios
 from .slice import slice
 from .tree import (
@@ -128,5 +129,6 @@ __all__ = [
     "tools",
     "scenarios",
     "slice",
+    "cut",
     "load_mesh",
 ]

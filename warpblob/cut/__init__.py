@@ -1,4 +1,4 @@
-"""Cutting ("VolCut", SPEC section 6): so far the generated subdivision tables.
+"""Cutting ("VolCut", SPEC section 6): sweep surfaces, the cut, generated subdivision tables.
 
 Follows the thesis' non-progressive cutter (Shirazian 2014, VolCut) and
 extends it with progressive (partial) cuts after Bielser et al. 2003 and
@@ -6,6 +6,8 @@ Mor & Kanade 2000.
 """
 
 from .._errors import CutError
+from ._cut import STAGES, CutResult, cut
+from ._sweep import SweepSurface
 from ._tables import CutTables, cut_tables, rank_index
 
-__all__ = ["CutError", "CutTables", "cut_tables", "rank_index"]
+__all__ = ["STAGES", "CutError", "CutResult", "CutTables", "SweepSurface", "cut", "cut_tables", "rank_index"]

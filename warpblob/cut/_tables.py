@@ -89,18 +89,18 @@ import numpy as np
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 
 __all__ = [
+    "COMPLETE_KINDS",
+    "INTACT_KINDS",
+    "PROGRESSIVE_KINDS",
+    "RANK_PERMUTATIONS",
+    "REF_CELL",
+    "REF_FACE",
+    "REF_NODE",
+    "REF_SPLIT",
+    "SUBTET_MAX",
     "CutTables",
     "cut_tables",
     "rank_index",
-    "RANK_PERMUTATIONS",
-    "REF_SPLIT",
-    "REF_NODE",
-    "REF_FACE",
-    "REF_CELL",
-    "SUBTET_MAX",
-    "COMPLETE_KINDS",
-    "PROGRESSIVE_KINDS",
-    "INTACT_KINDS",
 ]
 
 REF_SPLIT = 4

@@ -36,8 +36,8 @@ removal fires an event to the observers (:meth:`TetStructure.subscribe`).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import warp as wp
@@ -50,19 +50,22 @@ from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
 __all__ = [
-    "TetStructure",
-    "TetStructureArrays",
-    "NodeView",
+    "NODE_ORIGINS",
+    "CellView",
     "EdgeView",
     "FaceView",
-    "CellView",
+    "NodeView",
+    "TetStructure",
+    "TetStructureArrays",
+    "csr",
     "edge_key",
     "edge_table_find",
     "lookup_edge",
-    "csr",
 ]
 
 KINDS = ("node", "edge", "face", "cell")
+#: :attr:`TetStructure.node_origin` values: what made a node
+NODE_ORIGINS = {"model": 0, "split": 1, "copy": 2, "front": 3}
 EMPTY = -1  # hash slot never used
 DELETED = -2  # hash slot whose edge was removed (probing continues past it)
 _GOLDEN = 0x9E3779B97F4A7C15  # 2^64 / golden ratio: Fibonacci hashing
@@ -289,7 +292,7 @@ def lower_bound_kernel(
 ):
     """CSR offset of row ``r``: the first of the ``count`` sorted rows that is >= ``r``."""
     r = wp.tid() + offset
-    lo = int(0)
+    lo = 0
     hi = count
     while lo < hi:
         mid = (lo + hi) // 2
@@ -315,10 +318,33 @@ def insert_edges_kernel(
     key = edge_key(edge_nodes[e][0], edge_nodes[e][1])
     mask = (1 << bits) - 1
     s = _edge_slot(key, bits)
-    placed = int(0)
+    placed = 0
     while placed == 0:
         if wp.atomic_cas(keys, s, _EMPTY_WP, key) == _EMPTY_WP:
             values[s] = e
+            placed = 1
+        else:
+            s = (s + 1) & mask
+
+
+@wp.kernel(enable_backward=False)
+def insert_edge_ids_kernel(
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    edge_ids: wp.array(dtype=wp.int32),
+    bits: int,
+    keys: wp.array(dtype=wp.int64),
+    values: wp.array(dtype=wp.int32),
+):
+    """Claim a slot for each listed edge (a table with room): compare-and-swap on empty or deleted slots."""
+    i = wp.tid()
+    key = edge_key(edge_nodes[i][0], edge_nodes[i][1])
+    mask = (1 << bits) - 1
+    s = _edge_slot(key, bits)
+    placed = 0
+    while placed == 0:
+        if keys[s] < wp.int64(0):
+            keys[s] = key
+            values[s] = edge_ids[i]
             placed = 1
         else:
             s = (s + 1) & mask
@@ -385,6 +411,40 @@ def _build_table(edge_nodes: wp.array, edge_alive: wp.array, live_edges: int, de
     return keys.numpy(), values.numpy(), bits
 
 
+def _face_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
+    """(F,) int64 order-free keys of (F, 3) node triples (unique for ``node_count < 2**21``, else a fallback)."""
+    t = np.sort(np.asarray(tri, dtype=np.int64).reshape(-1, 3), axis=1)
+    n = max(int(node_count), 1)
+    if n < 1 << 21:
+        return (t[:, 0] * n + t[:, 1]) * n + t[:, 2]
+    # rank the triples: equal triples get equal keys
+    _, inverse = np.unique(t, axis=0, return_inverse=True)
+    return inverse.astype(np.int64).ravel()
+
+
+def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> np.ndarray:
+    """Component labels of ``count`` items joined by pairs (a, b): hooking plus pointer jumping, vectorized."""
+    parent = np.arange(count, dtype=np.int64)
+    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
+    while True:
+        ra, rb = parent[a], parent[b]
+        differ = ra != rb
+        if not differ.any():
+            break
+        lo, hi = np.minimum(ra[differ], rb[differ]), np.maximum(ra[differ], rb[differ])
+        np.minimum.at(parent, hi, lo)
+        while True:  # pointer jumping: every item to its root
+            grand = parent[parent]
+            if np.array_equal(grand, parent):
+                break
+            parent = grand
+    labels = np.full(count, -1, dtype=np.int32)
+    roots = parent[alive]
+    _, dense = np.unique(roots, return_inverse=True)
+    labels[alive] = dense.ravel()
+    return labels
+
+
 def _host_key(a: int, b: int) -> int:
     return (max(a, b) << 32) | min(a, b)
 
@@ -413,10 +473,28 @@ class _Store:
         self.arrays = {n: np.full((0, *shape), fill, dtype=dt) for n, (shape, dt, fill) in columns.items()}
 
     def load(self, **arrays) -> None:
-        """Replace every column (all of the same length, which becomes the count)."""
+        """Replace every column (all of the same length, which becomes the count; a missing one is filled)."""
         self.count = len(arrays["alive"])
-        for name, (shape, dt, _) in self.columns.items():
-            self.arrays[name] = np.array(arrays[name], dtype=dt).reshape(self.count, *shape)  # a copy: we own it
+        for name, (shape, dt, fill) in self.columns.items():
+            if name in arrays:
+                self.arrays[name] = np.array(arrays[name], dtype=dt).reshape(self.count, *shape)  # a copy: we own it
+            else:
+                self.arrays[name] = np.full((self.count, *shape), fill, dtype=dt)
+
+    def extend(self, n: int, **values) -> np.ndarray:
+        """Append ``n`` slots at once (columns given as arrays of ``n`` rows, the rest filled); their indices."""
+        start, capacity = self.count, len(self.arrays["alive"])
+        if start + n > capacity:
+            size = max(16, 2 * capacity, start + n)
+            for name, (shape, dt, fill) in self.columns.items():
+                grown = np.full((size, *shape), fill, dtype=dt)
+                grown[:capacity] = self.arrays[name]
+                self.arrays[name] = grown
+        for name, value in values.items():
+            self.arrays[name][start : start + n] = value
+        self.arrays["alive"][start : start + n] = True
+        self.count = start + n
+        return np.arange(start, start + n, dtype=np.int32)
 
     def append(self, **values) -> int:
         i = self.count
@@ -439,7 +517,14 @@ class _Store:
 def _stores() -> dict:
     alive = ((), np.bool_, False)
     return {
-        "node": _Store({"rest": ((3,), np.float32, 0.0), "position": ((3,), np.float32, 0.0), "alive": alive}),
+        "node": _Store(
+            {
+                "rest": ((3,), np.float32, 0.0),
+                "position": ((3,), np.float32, 0.0),
+                "origin": ((), np.int8, 0),
+                "alive": alive,
+            }
+        ),
         "edge": _Store({"nodes": ((2,), np.int32, -1), "alive": alive}),
         "face": _Store(
             {
@@ -611,6 +696,7 @@ class TetStructure:
         self._new_node_edges: dict[int, set[int]] = {}
         self._new_edge_faces: dict[int, set[int]] = {}
         self._links_dirty = False
+        self._links_stale = False  # a batch edit left the CSR lists behind: rebuild before using them
 
     # -- construction --------------------------------------------------------
 
@@ -736,6 +822,11 @@ class TetStructure:
     node_rest = property(lambda self: self._view("node", "rest"), doc="(N, 3) float32 rest positions.")
     node_position = property(lambda self: self._view("node", "position"), doc="(N, 3) float32 current positions.")
     node_alive = property(lambda self: self._view("node", "alive"), doc="(N,) bool.")
+    node_origin = property(
+        lambda self: self._view("node", "origin"),
+        doc="(N,) int8 how each node was made: 0 the model's, 1 a split point, 2 a cut node (snapped onto a "
+        "cut) or its copy, 3 a crack front point (:data:`NODE_ORIGINS`).",
+    )
     edge_nodes = property(lambda self: self._view("edge", "nodes"), doc="(E, 2) int32 nodes of each edge.")
     edge_alive = property(lambda self: self._view("edge", "alive"), doc="(E,) bool.")
     face_nodes = property(lambda self: self._view("face", "nodes"), doc="(F, 3) int32 nodes of each face.")
@@ -893,9 +984,14 @@ class TetStructure:
         keep = alive[candidates] & (owner[candidates] == i).any(axis=1)
         return np.unique(candidates[keep]).astype(np.int32)
 
+    def _fresh_links(self) -> None:
+        if self._links_stale:
+            self._rebuild(wp.get_device("cpu"), None)
+
     def edges_of_node(self, node: int) -> np.ndarray:
         """Live edges incident to ``node``, sorted (int32)."""
         v = self._check(node, "node", alive=False)
+        self._fresh_links()
         edges = self._stores["edge"]
         return self._incident(
             v, self._node_edge_offsets, self._node_edge_list, self._new_node_edges, edges["nodes"], edges["alive"]
@@ -904,6 +1000,7 @@ class TetStructure:
     def faces_of_edge(self, edge: int) -> np.ndarray:
         """Live faces incident to ``edge``, sorted (int32)."""
         e = self._check(edge, "edge", alive=False)
+        self._fresh_links()
         faces = self._stores["face"]
         return self._incident(
             e, self._edge_face_offsets, self._edge_face_list, self._new_edge_faces, faces["edges"], faces["alive"]
@@ -1164,6 +1261,234 @@ class TetStructure:
         self.update_edge(e, n0, first)
         return first, second, self.insert_edge(second, n1)
 
+    # -- batch edits (cutting) ----------------------------------------------------------------
+
+    def insert_nodes(self, rest, position=None, *, origin: int = 0) -> np.ndarray:
+        """Append many nodes at once; one "insert" event with the (K,) int32 array of their indices.
+
+        Args:
+            rest: (K, 3) rest positions.
+            position: (K, 3) current positions (default ``rest``).
+            origin: :data:`NODE_ORIGINS` value stored for them.
+        """
+        r = np.asarray(rest, dtype=np.float32).reshape(-1, 3)
+        p = r if position is None else np.asarray(position, dtype=np.float32).reshape(-1, 3)
+        if p.shape != r.shape:
+            raise WarpblobError(f"TetStructure.insert_nodes: {len(r)} rest positions but {len(p)} positions")
+        bad = np.flatnonzero(~(np.isfinite(r).all(axis=1) & np.isfinite(p).all(axis=1)))
+        if bad.size:
+            raise WarpblobError(f"TetStructure.insert_nodes: node {bad[0]} is not finite: {r[bad[0]].tolist()}")
+        ids = self._stores["node"].extend(len(r), rest=r, position=p, origin=int(origin))
+        if len(ids):
+            self._emit("node", "insert", ids)
+        return ids
+
+    def replace_cells(self, remove, nodes, material) -> np.ndarray:
+        """Remove cells and insert others in one batch (vectorized; the cutting path).
+
+        Faces of the new cells that coincide with faces of the removed cells
+        are reused (their cell slots re-linked), the others are created, and
+        so are missing edges; removed cells are pending until
+        :meth:`collect_garbage`, which also purges the faces, edges and nodes
+        no longer used. Validated first: on an error nothing has changed.
+        Fires one event per kind and action with the array of indices
+        ("remove" cells, "insert" edges, faces, cells). Orientation is the
+        caller's duty. The node -> edge and edge -> face lists are rebuilt on
+        the next query that needs them.
+
+        Args:
+            remove: (R,) live cell indices.
+            nodes: (C, 4) int node indices of the new cells.
+            material: (C,) int material ids (or one id for all).
+
+        Returns:
+            (C,) int32 indices of the new cells.
+
+        Raises:
+            WarpblobError: a removed cell is not live or repeated, a node is
+                missing, dead or repeated in a cell, or a face would have
+                more than two cells.
+        """
+        st = self._stores
+        cells, faces = st["cell"], st["face"]
+        remove = np.asarray(remove, dtype=np.int64).ravel()
+        if remove.size and (remove.min() < 0 or remove.max() >= cells.count):
+            raise WarpblobError(f"TetStructure.replace_cells: cell index out of range in {remove.tolist()[:8]}")
+        if remove.size and (not cells["alive"][remove].all() or len(np.unique(remove)) != len(remove)):
+            raise WarpblobError("TetStructure.replace_cells: the cells to remove must be live and distinct")
+        new = np.asarray(nodes, dtype=np.int64).reshape(-1, 4)
+        C = len(new)
+        mat = np.broadcast_to(np.asarray(material, dtype=np.int32), (C,))
+        N = st["node"].count
+        if C and (new.min() < 0 or new.max() >= N or not st["node"]["alive"][new].all()):
+            raise WarpblobError("TetStructure.replace_cells: a new cell names a missing or removed node")
+        srt = np.sort(new, axis=1)
+        if C and np.any(srt[:, 1:] == srt[:, :-1]):
+            bad = int(np.flatnonzero(np.any(srt[:, 1:] == srt[:, :-1], axis=1))[0])
+            raise WarpblobError(f"TetStructure.replace_cells: new cell {bad} repeats a node: {new[bad].tolist()}")
+
+        old_faces = np.unique(cells["faces"][remove]) if remove.size else np.zeros(0, dtype=np.int64)
+        slots = faces["cells"][old_faces].copy()
+        slots[np.isin(slots, remove)] = -1
+        slots = np.sort(slots, axis=1)[:, ::-1]  # the kept cell (if any) first
+        new_faces_nodes = new[:, TET_FACES].reshape(-1, 3)  # (4C, 3) in each cell's face order
+        keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new_faces_nodes]), N)
+        uniq, inverse = np.unique(keys, return_inverse=True)
+        inverse = inverse.ravel()
+        face_of = np.full(len(uniq), -1, dtype=np.int64)
+        face_of[inverse[: len(old_faces)]] = old_faces
+        taken = np.zeros(len(uniq), dtype=np.int64)
+        taken[inverse[: len(old_faces)]] = (slots >= 0).sum(axis=1)
+        inv_new = inverse[len(old_faces) :]
+        uses = np.bincount(inv_new, minlength=len(uniq))
+        if np.any(taken + uses > 2):
+            u = int(np.flatnonzero(taken + uses > 2)[0])
+            f = new_faces_nodes[np.flatnonzero(inv_new == u)[0]].tolist()
+            raise WarpblobError(f"TetStructure.replace_cells: face {f} would have {taken[u] + uses[u]} cells")
+
+        # -- commit -------------------------------------------------------------------------------
+        face_cells = faces.arrays["cells"]
+        face_cells[old_faces] = slots
+        cells.arrays["alive"][remove] = False
+        self._pending["cell"].extend(remove.tolist())
+        if remove.size:
+            self._emit("cell", "remove", remove.astype(np.int32))
+
+        # edges: the new cells' six, found in the table or appended
+        pairs = new[:, TET_EDGES].reshape(-1, 2)
+        found = self.find_edges(pairs, device="cpu") if C else np.zeros(0, dtype=np.int32)
+        missing = found < 0
+        if missing.any():
+            mk = np.maximum(pairs[missing, 0], pairs[missing, 1]) * N + np.minimum(pairs[missing, 0], pairs[missing, 1])
+            mk_uniq, first, mk_inv = np.unique(mk, return_index=True, return_inverse=True)
+            edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs[missing][first])
+            found[missing] = edge_ids[mk_inv]
+            self._table_add(edge_ids)
+            self._emit("edge", "insert", edge_ids)
+        cell_edges = found.reshape(C, 6)
+
+        # faces: reuse or create (oriented by the first new cell that has it)
+        create = np.flatnonzero(face_of < 0)
+        if create.size:
+            first_use = np.full(len(uniq), -1, dtype=np.int64)
+            order = np.argsort(inv_new, kind="stable")
+            heads = np.r_[True, inv_new[order][1:] != inv_new[order][:-1]] if len(order) else np.zeros(0, bool)
+            first_use[inv_new[order][heads]] = order[heads]
+            fn = new_faces_nodes[first_use[create]]
+            # face edge j joins nodes j, j+1: the cell edges in TET_EDGES order hold them
+            fe = self.find_edges(np.stack([fn, np.roll(fn, -1, axis=1)], axis=2).reshape(-1, 2), device="cpu")
+            face_ids = faces.extend(len(create), nodes=fn, edges=fe.reshape(-1, 3))
+            face_of[create] = face_ids
+            self._emit("face", "insert", face_ids)
+        cell_faces = face_of[inv_new].reshape(C, 4)
+
+        cell_ids = cells.extend(C, nodes=new, faces=cell_faces, edges=cell_edges, material=mat)
+        # link: each use takes the next free slot of its face (kept cells first)
+        f_flat = cell_faces.ravel()
+        order = np.argsort(f_flat, kind="stable")
+        fs = f_flat[order]
+        starts = np.r_[0, np.flatnonzero(fs[1:] != fs[:-1]) + 1] if len(fs) else np.zeros(0, np.int64)
+        rank = np.arange(len(fs)) - np.repeat(starts, np.diff(np.r_[starts, len(fs)]))
+        face_cells = faces.arrays["cells"]  # the extend above may have grown it
+        slot = rank + (face_cells[fs, 0] >= 0)
+        face_cells[fs, slot] = np.repeat(cell_ids, 4)[order]
+        if C:
+            self._emit("cell", "insert", cell_ids)
+        self._links_dirty = True
+        self._links_stale = True
+        return cell_ids
+
+    def _mark_origin(self, ids, origin: int) -> None:
+        """Record how nodes were made (:data:`NODE_ORIGINS`), e.g. model nodes a cut snapped onto."""
+        self._stores["node"].arrays["origin"][np.asarray(ids, dtype=np.int64)] = origin
+
+    def _truncate_nodes(self, count: int) -> None:
+        """Drop the nodes appended after slot ``count`` (undo of a batch whose later part failed)."""
+        store = self._stores["node"]
+        store.arrays["alive"][count : store.count] = False
+        store.count = min(store.count, count)
+
+    def _table_add(self, edge_ids: np.ndarray) -> None:
+        """Put new edges in the lookup table (one kernel; the table grows by a rebuild when too full)."""
+        if 2 * (self._table_used + len(edge_ids)) > len(self._table_keys):
+            self._build_table(wp.get_device("cpu"))
+            return
+        keys = wp.array(self._table_keys, dtype=wp.int64, device="cpu")
+        values = wp.array(self._table_values, dtype=wp.int32, device="cpu")
+        nodes = wp.array(self._stores["edge"]["nodes"][edge_ids], dtype=wp.vec2i, device="cpu")
+        # Warp's CPU atomics are plain loads and stores: one launch, not range-split
+        wp.launch(insert_edge_ids_kernel, dim=len(edge_ids),
+                  inputs=[nodes, wp.array(edge_ids, dtype=wp.int32, device="cpu"), self._table_bits, keys, values],
+                  device="cpu")  # fmt: skip
+        self._table_keys, self._table_values = keys.numpy(), values.numpy()
+        self._table_used += len(edge_ids)
+
+    def components(self) -> np.ndarray:
+        """(C,) int32 connected piece of every cell slot (cells joined through shared faces), -1 for dead cells.
+
+        Pieces are numbered 0, 1, ... in the order of their lowest cell.
+        Union by shared faces with pointer jumping (vectorized, O(log n) rounds).
+
+        Example:
+            >>> from warpblob.mesh import box_tetmesh
+            >>> int(TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (2, 2, 2))).components().max()) + 1
+            1
+        """
+        st = self._stores
+        alive = st["cell"]["alive"]
+        fc = st["face"]["cells"]
+        both = st["face"]["alive"] & (fc[:, 0] >= 0) & (fc[:, 1] >= 0)
+        return _connected(st["cell"].count, fc[both, 0], fc[both, 1], alive)
+
+    def surface(self, *, model=None, rest: bool = False):
+        """The boundary of the live cells as a :class:`~warpblob.mesh.SurfaceMesh`, cut faces marked.
+
+        Faces are oriented outwards; ``is_cut`` marks faces made by cutting
+        (every corner a cut point, :attr:`node_origin` > 0: split points, cut
+        nodes and their copies, crack front points). Colours: the BlobTree's colour field at the
+        rest positions when ``model`` is given (the model knows what the
+        inside looks like), else light grey. Normals are area-weighted face
+        normals.
+
+        Args:
+            model: optional BlobTree node for colours.
+            rest: vertices at rest positions instead of current ones.
+
+        Returns:
+            A SurfaceMesh on the nodes the boundary uses, with ``is_cut`` (F,)
+            bool and ``stats["nodes"]`` the structure node of each vertex.
+        """
+        from ._surface import SurfaceMesh
+
+        st = self._stores
+        fc = st["face"]["cells"]
+        outer = np.flatnonzero(st["face"]["alive"] & (fc[:, 0] >= 0) & (fc[:, 1] < 0))
+        cell = fc[outer, 0]
+        # orient from the cell: face k of a positive tet, TET_FACES order, is counter-clockwise from outside
+        cn = st["cell"]["nodes"][cell]
+        k = np.argmax(st["cell"]["faces"][cell] == outer[:, None], axis=1)
+        tri = cn[np.arange(len(cell))[:, None], TET_FACES[k]]
+        used, faces = np.unique(tri, return_inverse=True)
+        faces = faces.reshape(-1, 3).astype(np.int32)
+        pts = st["node"]["rest" if rest else "position"][used].astype(np.float32)
+        on_cut = st["node"]["origin"][used] > 0
+        is_cut = on_cut[faces].all(axis=1)
+        normals = np.zeros_like(pts, dtype=np.float64)
+        fnorm = np.cross(pts[faces[:, 1]] - pts[faces[:, 0]], pts[faces[:, 2]] - pts[faces[:, 0]]).astype(np.float64)
+        for j in range(3):
+            np.add.at(normals, faces[:, j], fnorm)
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+        if model is not None:
+            from ..field import evaluate
+
+            colors = np.asarray(evaluate(model, st["node"]["rest"][used].astype(np.float32))[2], dtype=np.float32)
+        else:
+            colors = np.full((len(used), 3), 0.8, dtype=np.float32)
+        return SurfaceMesh(
+            pts, faces, normals.astype(np.float32), colors,
+            stats={"source": "TetStructure", "nodes": used.astype(np.int32)}, is_cut=is_cut,
+        )  # fmt: skip
+
     # -- removal and garbage collection -----------------------------------------------------
 
     def _remove(self, kind: str, i: int) -> None:
@@ -1242,7 +1567,10 @@ class TetStructure:
             maps[kind] = np.full(len(alive), -1, dtype=np.int32)
             maps[kind][alive] = np.arange(np.count_nonzero(alive), dtype=np.int32)
         n, e, f, c = (keep[kind] for kind in KINDS)
-        nodes.load(rest=nodes["rest"][n], position=nodes["position"][n], alive=np.ones(n.sum(), dtype=bool))
+        nodes.load(
+            rest=nodes["rest"][n], position=nodes["position"][n], origin=nodes["origin"][n],
+            alive=np.ones(n.sum(), dtype=bool),
+        )  # fmt: skip
         edges.load(nodes=_remap(maps["node"], edges["nodes"][e]), alive=np.ones(e.sum(), dtype=bool))
         faces.load(
             nodes=_remap(maps["node"], faces["nodes"][f]),

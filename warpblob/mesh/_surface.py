@@ -80,6 +80,8 @@ class SurfaceMesh:
             or None for a mesh no slice made.
         cap_colors: (C, 3) float32 RGB of the cap faces in face order
             (``C = is_cap.sum()``), or None.
+        is_cut: (F,) bool, faces a blade made (the boundary of a cut tet
+            mesh, :meth:`~warpblob.mesh.TetStructure.surface`), or None.
 
     Example:
         >>> import warpblob as wb
@@ -95,6 +97,7 @@ class SurfaceMesh:
     stats: dict = field(default_factory=dict)
     is_cap: np.ndarray | None = None
     cap_colors: np.ndarray | None = None
+    is_cut: np.ndarray | None = None
 
     @property
     def vertex_count(self) -> int:
@@ -243,4 +246,6 @@ class SurfaceMesh:
         poly.point_data.active_normals_name = "Normals"
         if self.is_cap is not None:
             poly.cell_data["is_cap"] = np.asarray(self.is_cap, dtype=bool)
+        if self.is_cut is not None:
+            poly.cell_data["is_cut"] = np.asarray(self.is_cut, dtype=bool)
         return poly
