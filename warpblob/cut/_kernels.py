@@ -69,9 +69,9 @@ def intersect_edges_kernel(
     p = positions[edge_nodes[e][0]]
     q = positions[edge_nodes[e][1]]
     query = wp.bvh_query_aabb(bvh, wp.min(p, q), wp.max(p, q))
-    i = 0
-    best = -1
-    best_t = -1.0
+    i = int(0)
+    best = int(-1)
+    best_t = float(-1.0)
     while wp.bvh_query_next(query, i):
         if best < 0 or i < best:
             t = segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
@@ -110,7 +110,7 @@ def cell_codes_kernel(
 ):
     """Per cell: ``edge_code | node_code << 6`` (6 cut-edge bits in TET_EDGES order, 4 cut-node bits)."""
     c = wp.tid() + offset
-    value = 0
+    value = int(0)
     if cell_alive[c] != wp.uint8(0):
         for j in range(6):
             if edge_cut[cell_edges[c][j]] != wp.uint8(0):

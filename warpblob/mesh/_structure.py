@@ -292,7 +292,7 @@ def lower_bound_kernel(
 ):
     """CSR offset of row ``r``: the first of the ``count`` sorted rows that is >= ``r``."""
     r = wp.tid() + offset
-    lo = 0
+    lo = int(0)
     hi = count
     while lo < hi:
         mid = (lo + hi) // 2
@@ -318,7 +318,7 @@ def insert_edges_kernel(
     key = edge_key(edge_nodes[e][0], edge_nodes[e][1])
     mask = (1 << bits) - 1
     s = _edge_slot(key, bits)
-    placed = 0
+    placed = int(0)
     while placed == 0:
         if wp.atomic_cas(keys, s, _EMPTY_WP, key) == _EMPTY_WP:
             values[s] = e
@@ -340,7 +340,7 @@ def insert_edge_ids_kernel(
     key = edge_key(edge_nodes[i][0], edge_nodes[i][1])
     mask = (1 << bits) - 1
     s = _edge_slot(key, bits)
-    placed = 0
+    placed = int(0)
     while placed == 0:
         if keys[s] < wp.int64(0):
             keys[s] = key
@@ -1263,6 +1263,22 @@ class TetStructure:
 
     # -- batch edits (cutting) ----------------------------------------------------------------
 
+    def set_positions(self, positions) -> None:
+        """Set every node's current position at once ((N, 3), e.g. a simulation's); one "update" event.
+
+        Raises:
+            WarpblobError: a shape other than (N, 3) or a value that is not finite.
+        """
+        p = np.asarray(positions, dtype=np.float32)
+        store = self._stores["node"]
+        if p.shape != (store.count, 3):
+            raise WarpblobError(f"TetStructure.set_positions: need shape ({store.count}, 3), got {p.shape}")
+        bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
+        if bad.size:
+            raise WarpblobError(f"TetStructure.set_positions: node {bad[0]} position {p[bad[0]].tolist()} not finite")
+        store.arrays["position"][: store.count] = p
+        self._emit("node", "update", np.arange(store.count, dtype=np.int32))
+
     def insert_nodes(self, rest, position=None, *, origin: int = 0) -> np.ndarray:
         """Append many nodes at once; one "insert" event with the (K,) int32 array of their indices.
 
@@ -1533,8 +1549,8 @@ class TetStructure:
         """Purge unreferenced entities, compact every kind and remap every link.
 
         Faces no live cell uses, then edges no live face or cell uses, then
-        nodes no live edge, face or cell uses are removed (with "remove"
-        events); live entities are renumbered in their old order, links and
+        nodes no live edge, face or cell uses are removed (one "remove"
+        event per kind with the array of their indices); live entities are renumbered in their old order, links and
         the lookup table rebuilt, the pending lists emptied, and a "compact"
         event fires per kind.
 
@@ -1586,17 +1602,20 @@ class TetStructure:
             alive=np.ones(c.sum(), dtype=bool),
         )
         self._pending = {k: [] for k in KINDS}
-        self._rebuild(wp.get_device("cpu"), None)
+        # the lookup table now; the CSR lists when a query first needs them
+        self._clear_links()
+        self._build_table(wp.get_device("cpu"))
+        self._links_dirty = self._links_stale = True
         self.last_remap = maps
         for kind in KINDS:
             self._emit(kind, "compact", st[kind].count)
         return maps
 
     def _purge(self, kind: str, mask: np.ndarray) -> None:
-        ids = np.flatnonzero(mask)
+        ids = np.flatnonzero(mask).astype(np.int32)
         self._stores[kind].arrays["alive"][ids] = False
-        for i in ids.tolist() if self._observers else ():
-            self._emit(kind, "remove", i)
+        if ids.size:
+            self._emit(kind, "remove", ids)
 
     # -- consistency, export -------------------------------------------------------------------
 
