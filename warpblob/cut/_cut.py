@@ -55,6 +55,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import CutError
 from .._parallel import launch
+from .._stages import compact
 from ..mesh._structure import NODE_ORIGINS, TetStructure, _connected, vec6i
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
@@ -138,17 +139,17 @@ def _bvh(sweep: SweepSurface, device) -> tuple[wp.Bvh, wp.array]:
     return wp.Bvh(lowers, uppers), corners
 
 
-def _compact(flags: wp.array, count: int, device, threads) -> np.ndarray:
-    """Indices of the non-zero flags: exclusive scan, then a kernel writes each at its place."""
-    if count == 0:
+def _shared(values: np.ndarray, dtype, device) -> wp.array:
+    """``values`` as a Warp array: the same memory on the CPU (no copy of the big structure arrays), a copy on CUDA."""
+    values = np.ascontiguousarray(values)
+    return wp.array(values, dtype=dtype, device=device, copy=device.is_cuda)
+
+
+def _compact(flags: wp.array, device, threads) -> np.ndarray:
+    """Indices of the non-zero flags (exclusive scan, then a kernel writes each at its place), on the host."""
+    if flags.shape[0] == 0:
         return np.zeros(0, dtype=np.int32)
-    scan = wp.empty(count, dtype=wp.int32, device=device)
-    wp.utils.array_scan(flags, scan, inclusive=False)
-    # host sync: the hit count sizes the list
-    total = int(scan[count - 1 : count].numpy()[0] + flags[count - 1 : count].numpy()[0])
-    out = wp.empty(max(total, 1), dtype=wp.int32, device=device)
-    launch(k.compact_kernel, count, [flags, scan], [out], device, threads)
-    return out.numpy()[:total].copy()
+    return compact(flags, device, threads).numpy()
 
 
 def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, collect: bool = True,
@@ -201,16 +202,16 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     E, N, C = len(edge_nodes_np), len(structure.node_rest), len(structure.cell_nodes)
     positions_np = np.asarray(structure.node_position)
     bvh, corners = _bvh(sweep, dev)
-    edge_nodes = wp.array(edge_nodes_np, dtype=wp.vec2i, device=dev)
-    edge_ok = wp.array(np.asarray(structure.edge_alive).view(np.uint8), dtype=wp.uint8, device=dev)
-    positions = wp.array(positions_np, dtype=wp.vec3, device=dev)
+    edge_nodes = _shared(edge_nodes_np, wp.vec2i, dev)
+    edge_ok = _shared(np.asarray(structure.edge_alive).view(np.uint8), wp.uint8, dev)
+    positions = _shared(positions_np, wp.vec3, dev)
     hit_t = wp.empty(E, dtype=float, device=dev)
     hit_tri = wp.empty(E, dtype=wp.int32, device=dev)
     launch(k.intersect_edges_kernel, E, [edge_nodes, edge_ok, positions, bvh.id, corners], [hit_t, hit_tri], dev,
            threads, min_chunk=1024)  # fmt: skip
     flags = wp.empty(E, dtype=wp.int32, device=dev)
     launch(k.flag_positive_kernel, E, [hit_t], [flags], dev, threads)
-    hits = _compact(flags, E, dev, threads)
+    hits = _compact(flags, dev, threads)
     t_hit = hit_t.numpy()[hits].astype(np.float64)
     t1 = time.perf_counter()
     result.seconds["intersection"] = t1 - t_start
@@ -225,9 +226,9 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     cell_nodes_np = np.asarray(structure.cell_nodes)
     cell_edges_np = np.asarray(structure.cell_edges)
     arrays = {
-        "cell_nodes": wp.array(cell_nodes_np, dtype=wp.vec4i, device=dev),
-        "cell_edges": wp.array(cell_edges_np, dtype=vec6i, device=dev),
-        "cell_alive": wp.array(np.asarray(structure.cell_alive).view(np.uint8), dtype=wp.uint8, device=dev),
+        "cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev),
+        "cell_edges": _shared(cell_edges_np, vec6i, dev),
+        "cell_alive": _shared(np.asarray(structure.cell_alive).view(np.uint8), wp.uint8, dev),
     }
     code_wp = wp.empty(C, dtype=wp.int32, device=dev)
     changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
@@ -239,9 +240,9 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         edge_cut[hits[keep]] = 1
         launch(k.cell_codes_kernel, C,
                [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
-                wp.array(edge_cut, dtype=wp.uint8, device=dev), wp.array(node_cut, dtype=wp.uint8, device=dev)],
+                _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
                [code_wp, changed_wp], dev, threads)  # fmt: skip
-        cells = _compact(changed_wp, C, dev, threads)
+        cells = _compact(changed_wp, dev, threads)
         code = code_wp.numpy()[cells]
         ecode, ncode = code & 63, code >> 6
         entry = tables.entry[ecode, ncode].astype(np.int64)
@@ -256,7 +257,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         perm = rank_index(cn) if len(cells) else np.zeros(0, dtype=np.int32)
         bad = entry < 0
         bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
-        ok = ~bad
+        ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the (checked) parent
         if ok.any():
             bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], cell_edges_np[cells[ok]], edge_nodes_np,
                                  split_t, rest_np)  # fmt: skip

@@ -8,7 +8,6 @@ from ..mesh._structure import vec6i
 
 __all__ = [
     "cell_codes_kernel",
-    "compact_kernel",
     "flag_positive_kernel",
     "intersect_edges_kernel",
     "segment_triangle",
@@ -86,15 +85,6 @@ def intersect_edges_kernel(
 def flag_positive_kernel(values: wp.array(dtype=float), offset: int, flags: wp.array(dtype=wp.int32)):
     i = wp.tid() + offset
     flags[i] = wp.where(values[i] >= 0.0, 1, 0)
-
-
-@wp.kernel(enable_backward=False)
-def compact_kernel(flags: wp.array(dtype=wp.int32), scan: wp.array(dtype=wp.int32), offset: int,
-                   out: wp.array(dtype=wp.int32)):  # fmt: skip
-    """Write index ``i`` at its place in the exclusive scan of the flags."""
-    i = wp.tid() + offset
-    if flags[i] != 0:
-        out[scan[i]] = i
 
 
 @wp.kernel(enable_backward=False)

@@ -350,6 +350,30 @@ def insert_edge_ids_kernel(
             s = (s + 1) & mask
 
 
+@wp.func
+def _find_root(parent: wp.array(dtype=wp.int32), i: int) -> int:
+    r = i
+    while parent[r] != r:
+        parent[r] = parent[parent[r]]  # path halving
+        r = parent[r]
+    return r
+
+
+@wp.kernel(enable_backward=False)
+def union_find_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=wp.int32), count: int,
+                      parent: wp.array(dtype=wp.int32)):  # fmt: skip
+    """Join every pair (one thread, in order); then every item's root is the lowest item of its set."""
+    for i in range(count):
+        ra = _find_root(parent, a[i])
+        rb = _find_root(parent, b[i])
+        if ra < rb:
+            parent[rb] = ra
+        elif rb < ra:
+            parent[ra] = rb
+    for i in range(parent.shape[0]):  # flatten: each item straight to its root (roots are lower, so done first)
+        parent[i] = parent[parent[i]]
+
+
 @wp.kernel(enable_backward=False)
 def find_edges_kernel(
     keys: wp.array(dtype=wp.int64),
@@ -411,6 +435,15 @@ def _build_table(edge_nodes: wp.array, edge_alive: wp.array, live_edges: int, de
     return keys.numpy(), values.numpy(), bits
 
 
+def _face_edge_slots() -> np.ndarray:
+    """(4, 3) for face k of a tet, the TET_EDGES slot of its edge j (nodes j, j+1 of TET_FACES[k])."""
+    slot = {frozenset(map(int, e)): j for j, e in enumerate(TET_EDGES)}
+    return np.array([[slot[frozenset((int(f[j]), int(f[(j + 1) % 3])))] for j in range(3)] for f in TET_FACES])
+
+
+_FACE_EDGE_SLOTS = _face_edge_slots()
+
+
 def _face_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
     """(F,) int64 order-free keys of (F, 3) node triples (unique for ``node_count < 2**21``, else a fallback)."""
     t = np.sort(np.asarray(tri, dtype=np.int64).reshape(-1, 3), axis=1)
@@ -423,26 +456,25 @@ def _face_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
 
 
 def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> np.ndarray:
-    """Component labels of ``count`` items joined by pairs (a, b): hooking plus pointer jumping, vectorized."""
-    parent = np.arange(count, dtype=np.int64)
-    a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
-    while True:
-        ra, rb = parent[a], parent[b]
-        differ = ra != rb
-        if not differ.any():
-            break
-        lo, hi = np.minimum(ra[differ], rb[differ]), np.maximum(ra[differ], rb[differ])
-        np.minimum.at(parent, hi, lo)
-        while True:  # pointer jumping: every item to its root
-            grand = parent[parent]
-            if np.array_equal(grand, parent):
-                break
-            parent = grand
-    labels = np.full(count, -1, dtype=np.int32)
-    roots = parent[alive]
-    _, dense = np.unique(roots, return_inverse=True)
-    labels[alive] = dense.ravel()
-    return labels
+    """Component labels of ``count`` items joined by pairs (a, b), numbered by lowest item; -1 where not alive.
+
+    A sequential union-find (union by lower root, path halving) in one Warp
+    kernel thread: near-linear, deterministic, and on these sizes (millions of
+    pairs) a few milliseconds of compiled code where vectorized numpy hooking
+    needs many passes.
+    """
+    parent = wp.array(np.arange(count, dtype=np.int32), dtype=wp.int32, device="cpu")
+    a = np.ascontiguousarray(a, dtype=np.int32)
+    b = np.ascontiguousarray(b, dtype=np.int32)
+    if len(a):
+        wp.launch(union_find_kernel, dim=1, device="cpu",
+                  inputs=[wp.array(a, dtype=wp.int32, device="cpu", copy=False),
+                          wp.array(b, dtype=wp.int32, device="cpu", copy=False), len(a), parent])  # fmt: skip
+    roots = parent.numpy()
+    alive = np.asarray(alive, dtype=bool)
+    is_root = (roots == np.arange(count)) & alive
+    dense = np.cumsum(is_root) - 1
+    return np.where(alive, dense[roots], -1).astype(np.int32)
 
 
 def _host_key(a: int, b: int) -> int:
@@ -473,13 +505,17 @@ class _Store:
         self.arrays = {n: np.full((0, *shape), fill, dtype=dt) for n, (shape, dt, fill) in columns.items()}
 
     def load(self, **arrays) -> None:
-        """Replace every column (all of the same length, which becomes the count; a missing one is filled)."""
-        self.count = len(arrays["alive"])
+        """Replace every column (all of the same length, which becomes the count; a missing one is filled).
+
+        Capacity gets an eighth more, so the first cuts after a build do not copy every column.
+        """
+        n = self.count = len(arrays["alive"])
+        capacity = n + n // 8 + 16
         for name, (shape, dt, fill) in self.columns.items():
+            column = np.full((capacity, *shape), fill, dtype=dt)
             if name in arrays:
-                self.arrays[name] = np.array(arrays[name], dtype=dt).reshape(self.count, *shape)  # a copy: we own it
-            else:
-                self.arrays[name] = np.full((self.count, *shape), fill, dtype=dt)
+                column[:n] = np.asarray(arrays[name], dtype=dt).reshape(n, *shape)  # a copy: we own it
+            self.arrays[name] = column
 
     def extend(self, n: int, **values) -> np.ndarray:
         """Append ``n`` slots at once (columns given as arrays of ``n`` rows, the rest filled); their indices."""
@@ -956,11 +992,12 @@ class TetStructure:
         pairs = np.ascontiguousarray(pairs, dtype=np.int32).reshape(-1, 2)
         dev = resolve_device(device)
         found = wp.empty(len(pairs), dtype=wp.int32, device=dev)
+        copy = dev.is_cuda  # on the CPU the kernel reads the table's own memory
         inputs = [
-            wp.array(self._table_keys, dtype=wp.int64, device=dev),
-            wp.array(self._table_values, dtype=wp.int32, device=dev),
+            wp.array(self._table_keys, dtype=wp.int64, device=dev, copy=copy),
+            wp.array(self._table_values, dtype=wp.int32, device=dev, copy=copy),
             self._table_bits,
-            wp.array(pairs, dtype=wp.vec2i, device=dev),
+            wp.array(pairs, dtype=wp.vec2i, device=dev, copy=copy),
         ]
         launch(find_edges_kernel, len(pairs), inputs, [found], dev, threads)
         return found.numpy()
@@ -1390,10 +1427,11 @@ class TetStructure:
             order = np.argsort(inv_new, kind="stable")
             heads = np.r_[True, inv_new[order][1:] != inv_new[order][:-1]] if len(order) else np.zeros(0, bool)
             first_use[inv_new[order][heads]] = order[heads]
-            fn = new_faces_nodes[first_use[create]]
-            # face edge j joins nodes j, j+1: the cell edges in TET_EDGES order hold them
-            fe = self.find_edges(np.stack([fn, np.roll(fn, -1, axis=1)], axis=2).reshape(-1, 2), device="cpu")
-            face_ids = faces.extend(len(create), nodes=fn, edges=fe.reshape(-1, 3))
+            use = first_use[create]  # index into the (C, 4) faces of the new cells
+            fn = new_faces_nodes[use]
+            # face edge j joins its nodes j, j+1: read it from the cell's six edges, no lookup
+            fe = cell_edges[use // 4][np.arange(len(use))[:, None], _FACE_EDGE_SLOTS[use % 4]]
+            face_ids = faces.extend(len(create), nodes=fn, edges=fe)
             face_of[create] = face_ids
             self._emit("face", "insert", face_ids)
         cell_faces = face_of[inv_new].reshape(C, 4)
@@ -1429,14 +1467,14 @@ class TetStructure:
         if 2 * (self._table_used + len(edge_ids)) > len(self._table_keys):
             self._build_table(wp.get_device("cpu"))
             return
-        keys = wp.array(self._table_keys, dtype=wp.int64, device="cpu")
-        values = wp.array(self._table_values, dtype=wp.int32, device="cpu")
+        # the kernel writes the table's own memory (no copy either way)
+        keys = wp.array(self._table_keys, dtype=wp.int64, device="cpu", copy=False)
+        values = wp.array(self._table_values, dtype=wp.int32, device="cpu", copy=False)
         nodes = wp.array(self._stores["edge"]["nodes"][edge_ids], dtype=wp.vec2i, device="cpu")
         # Warp's CPU atomics are plain loads and stores: one launch, not range-split
         wp.launch(insert_edge_ids_kernel, dim=len(edge_ids),
                   inputs=[nodes, wp.array(edge_ids, dtype=wp.int32, device="cpu"), self._table_bits, keys, values],
                   device="cpu")  # fmt: skip
-        self._table_keys, self._table_values = keys.numpy(), values.numpy()
         self._table_used += len(edge_ids)
 
     def components(self) -> np.ndarray:
