@@ -718,6 +718,8 @@ class TetStructure:
         self._pending: dict[str, list[int]] = {k: [] for k in KINDS}
         self.last_remap: dict[str, np.ndarray] = {}
         self.stats: dict = {}
+        #: grows on every change of the cells (insert, update, remove, compaction): a recorder's topology clock
+        self.topology_version = 0
         self._table_keys = np.full(16, EMPTY, dtype=np.int64)
         self._table_values = np.full(16, EMPTY, dtype=np.int32)
         self._table_bits = 4
@@ -964,6 +966,8 @@ class TetStructure:
         self._observers.remove(callback)
 
     def _emit(self, kind: str, action: str, index: int) -> None:
+        if kind == "cell" or action == "compact":
+            self.topology_version += 1
         for callback in list(self._observers):
             callback(kind, action, index)
 
