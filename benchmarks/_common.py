@@ -27,18 +27,25 @@ TIMING = "wall clock (time.perf_counter) around each whole call; warm (a first c
 BUSY_LOAD = 0.5
 
 
-def wall_time(fn, repeat: int = 3):
+def wall_time(fn, repeat: int = 3, *, setup=None):
     """Time whole calls of ``fn`` by the wall clock: one warm-up call, then the best of ``repeat``.
+
+    Args:
+        fn: the call to time; with ``setup``, ``fn(setup())``.
+        repeat: timed calls.
+        setup: optional untimed call before each call of ``fn`` (one fresh input
+            per call, for calls that change their input: a cut edits its mesh).
 
     Returns:
         ``(seconds, result)``: the smallest wall time of the timed calls and what
         that fastest call returned (its ``stats`` are the breakdown of the time).
     """
-    fn()
+    fn(*(() if setup is None else (setup(),)))
     best, result = float("inf"), None
     for _ in range(max(1, repeat)):
+        arg = () if setup is None else (setup(),)
         t0 = time.perf_counter()
-        out = fn()
+        out = fn(*arg)
         seconds = time.perf_counter() - t0
         if seconds < best:
             best, result = seconds, out

@@ -273,3 +273,32 @@ def test_sweep_surfaces():
     # the drill's wall sweeps a cylinder of its radius
     r = np.linalg.norm(d.triangles.reshape(-1, 3)[:, :2], axis=1)
     assert np.allclose(r, 0.1, atol=1e-9)
+
+
+def _cell_signature(s: TetStructure) -> np.ndarray:
+    """Rest centroid and volume of every live cell, sorted: topology compared regardless of numbering."""
+    tm = s.to_tetmesh(rest=True)
+    sig = np.column_stack([tm.nodes[tm.tets].mean(axis=1), tm.volumes()[:, None] * 1e3]).round(6)
+    return sig[np.lexsort(sig.T[::-1])]
+
+
+@pytest.mark.parametrize("stop", [0.5, 0.43, 0.31])
+def test_a_cut_in_two_strokes_has_the_topology_of_one_stroke(stop):
+    """The blade stops inside tets (progressive records), a second stroke completes them: the same cells."""
+    m = _box(5)
+
+    def stroke(s, y0, y1):
+        ys = np.linspace(y0, y1, 12)
+        a = np.column_stack([np.full_like(ys, 0.5), ys, np.full_like(ys, -0.5)])
+        return cut(s, SweepSurface.from_blade(a, a + (0, 0, 2.0)))
+
+    one = TetStructure.from_tetmesh(m)
+    stroke(one, -0.5, 1.5)
+    two = TetStructure.from_tetmesh(m)
+    first = stroke(two, -0.5, stop)
+    assert first.components == 1 and np.asarray(two.cell_parent).max() >= 0  # progressive records kept
+    second = stroke(two, stop - 0.05, 1.5)
+    _invariants(two, 1.0)
+    assert second.components == 2 and two.cell_count == one.cell_count
+    np.testing.assert_allclose(_cell_signature(two), _cell_signature(one), atol=1e-5)
+    assert np.all(np.asarray(two.cell_parent)[np.asarray(two.cell_alive)] == -1)  # every record completed

@@ -1,5 +1,5 @@
 """The ``warpblob`` command line: ``demo``, ``info``, ``field``, ``polygonize``, ``tetrahedralize``, ``quality``,
-``simulate``, ``scenario``, ``slice``."""
+``simulate``, ``scenario``, ``slice``, ``cut``."""
 
 from __future__ import annotations
 
@@ -342,6 +342,9 @@ def _parser() -> argparse.ArgumentParser:
     from .slice._command import add_slice_parser
 
     add_slice_parser(sub)
+    from .cut._command import add_cut_parser
+
+    add_cut_parser(sub)
     return p
 
 

@@ -27,7 +27,9 @@ def add_cut_parser(subparsers) -> argparse.ArgumentParser:
         "--plane", type=_plane, action="append", required=True, metavar="OX,OY,OZ,NX,NY,NZ",
         help="a point of the cutting plane and its normal; give it again for more cuts, made in order",
     )  # fmt: skip
-    ct.add_argument("--snap", type=float, default=0.2, help="snap distance, fraction of an edge, in [0, 0.5) (default 0.2)")
+    ct.add_argument(
+        "--snap", type=float, default=0.2, help="snap distance, fraction of an edge, in [0, 0.5) (default 0.2)"
+    )
     ct.add_argument("--out", required=True, help="output .usda/.usdc/.usd: /Cut/Volume (TetMesh) and /Cut/Surface")
     ct.add_argument("--png", default=None, help="also render the pieces pulled apart to this PNG file")
     ct.set_defaults(func=run_cut)

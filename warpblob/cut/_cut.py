@@ -38,10 +38,16 @@ leaves it as it was.
 Progressive cuts (beyond the thesis, after Bielser, Glardon, Teschner &
 Gross 2003 and Mor & Kanade 2000): a blade that stops inside a tet leaves it
 with 1-3 cut edges (C, D, E); the tables split it so that the swept faces
-separate and the rest stays joined through the crack front. A later stroke
-cuts the sub-tets like any others: the separation completes, but with more
-elements than the same cut made in one stroke (the parent's cut state is not
-kept yet).
+separate and the rest stays joined through the crack front (face and cell
+centres). The tet's cut state is kept as a record (its corners, the split
+points of its cut edges, its code, its front points;
+``TetStructure.cell_parent`` names the record of each piece). A later
+stroke cuts such a tet through its record: hits on its pieces' inner edges
+are ignored, its nodes are not snapped onto, and when the stroke cuts more of
+its own edges it is split again from the accumulated code with the same
+split points, so a cut completed in two strokes has exactly the cells of the
+same cut made in one (tested); front points shared by two such tets across
+a face are reused.
 """
 
 from __future__ import annotations
@@ -217,14 +223,17 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.seconds["intersection"] = t1 - t_start
 
     # -- 2. classification ------------------------------------------------------------------------
+    rest_np = np.asarray(structure.node_rest, dtype=np.float64)
+    cell_nodes_np = np.asarray(structure.cell_nodes)
+    cell_edges_np = np.asarray(structure.cell_edges)
+    state = _ParentState(structure, edge_nodes_np)
+    hits, t_hit = hits[~state.drop[hits]], t_hit[~state.drop[hits]]
     ends = edge_nodes_np[hits]
     node_cut = np.zeros(N, dtype=np.uint8)
     node_cut[ends[t_hit < snap, 0]] = 1
     node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
     _continue_fronts(structure, sweep, node_cut, hits, edge_nodes_np, positions_np)
-    rest_np = np.asarray(structure.node_rest, dtype=np.float64)
-    cell_nodes_np = np.asarray(structure.cell_nodes)
-    cell_edges_np = np.asarray(structure.cell_edges)
+    node_cut[state.protected] = 0
     arrays = {
         "cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev),
         "cell_edges": _shared(cell_edges_np, vec6i, dev),
@@ -233,52 +242,58 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     code_wp = wp.empty(C, dtype=wp.int32, device=dev)
     changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
     split_t = np.full(E, -1.0)
+    dropped = np.zeros(len(hits), dtype=bool)
+    cell_parent = np.asarray(structure.cell_parent)
     rounds = 0
     while True:
-        keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0)
+        keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut = np.zeros(E, dtype=np.uint8)
         edge_cut[hits[keep]] = 1
+        split_t[:] = -1.0
+        split_t[hits[keep]] = t_hit[keep]
         launch(k.cell_codes_kernel, C,
                [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
                 _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
                [code_wp, changed_wp], dev, threads)  # fmt: skip
         cells = _compact(changed_wp, dev, threads)
-        code = code_wp.numpy()[cells]
-        ecode, ncode = code & 63, code >> 6
-        entry = tables.entry[ecode, ncode].astype(np.int64)
-        split_t[:] = -1.0
-        split_t[hits[keep]] = t_hit[keep]
-        cn = cell_nodes_np[cells]
+        cells = cells[cell_parent[cells] < 0]  # pieces of a progressive parent are cut through their parent
+        units = _units(state, cells, code_wp.numpy()[cells], cell_nodes_np, cell_edges_np, edge_nodes_np, edge_cut,
+                       split_t, node_cut)  # fmt: skip
+        cn = units["corners"]
         rv = _signed_volumes(rest_np, cn)
         if np.any(rv <= 0):
             c0 = int(np.argmax(rv <= 0))
-            raise CutError(f"cut: cell {int(cells[c0])} is inverted or flat at rest (volume {float(rv[c0]):.3g}); "
-                           "the structure is unchanged")  # fmt: skip
-        perm = rank_index(cn) if len(cells) else np.zeros(0, dtype=np.int32)
+            raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
+                           f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
+        entry = tables.entry[units["edge_code"], units["node_code"]].astype(np.int64)
+        perm = rank_index(cn) if len(cn) else np.zeros(0, dtype=np.int32)
         bad = entry < 0
         bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
         ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the (checked) parent
         if ok.any():
-            bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], cell_edges_np[cells[ok]], edge_nodes_np,
-                                 split_t, rest_np)  # fmt: skip
+            bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], units["t"][ok], rest_np)
         if not bad.any():
             break
         rounds += 1
         if rounds > _ROUNDS:
             raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
-                           f"reductions (first: cell {int(cells[bad][0])}); the structure is unchanged")  # fmt: skip
-        # each bad tet snaps its cut edge nearest an end onto that end
-        ce = cell_edges_np[cells[bad]]
-        st_ = split_t[ce]
-        dist = np.where(st_ >= 0, np.minimum(st_, 1.0 - st_), np.inf)
+                           f"reductions (first: cell {int(units['cell'][bad][0])}); the structure is unchanged")  # fmt: skip
+        # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not be
+        # cut, drops the hit)
+        cand = units["new_edges"][bad]  # (b, 6) global edges this stroke cuts, -1 else
+        st_ = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
+        dist = np.where(cand >= 0, np.minimum(st_, 1.0 - st_), np.inf)
         j = np.argmin(dist, axis=1)
         has = np.isfinite(dist[np.arange(len(j)), j])
         if not has.any():
-            raise CutError(f"cut: cell {int(cells[bad][0])} has no valid configuration (its cut nodes alone are "
-                           "always valid: a bug); the structure is unchanged")  # fmt: skip
-        e_sel = ce[np.arange(len(j)), j][has]
+            raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
+                           "structure is unchanged")  # fmt: skip
+        e_sel = cand[np.arange(len(j)), j][has]
         t_sel = split_t[e_sel]
-        node_cut[np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])] = 1
+        target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
+        blocked = state.is_protected[target]
+        node_cut[target[~blocked]] = 1
+        dropped |= np.isin(hits, e_sel[blocked])
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
@@ -286,9 +301,9 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.seconds["classification"] = t2 - t1
 
     # -- 3. subdivision ---------------------------------------------------------------------------------
-    plan = _subdivide(structure, tables, cells, entry, perm, cn, cell_edges_np[cells], cut_edges, split_t,
-                      node_cut, edge_nodes_np, rest_np, positions_np)  # fmt: skip
-    kinds, counts = np.unique(tables.kind[entry], return_counts=True) if len(cells) else ((), ())
+    plan = _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t, node_cut, edge_nodes_np,
+                      rest_np, positions_np)  # fmt: skip
+    kinds, counts = np.unique(tables.kind[entry], return_counts=True) if len(entry) else ((), ())
     result.tets_split = {str(kd): int(n) for kd, n in zip(kinds, counts) if kd != "uncut"}
     t3 = time.perf_counter()
     result.seconds["subdivision"] = t3 - t2
@@ -299,10 +314,11 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         ids = [structure.insert_nodes(r, p, origin=NODE_ORIGINS[o]) for o, r, p in plan["nodes"]]
         structure._mark_origin(plan["separated"], NODE_ORIGINS["copy"])
         structure._mark_origin(plan["fronts"], NODE_ORIGINS["front"])
-        added = structure.replace_cells(plan["remove"], plan["tets"], plan["material"])
+        added = structure.replace_cells(plan["remove"], plan["tets"], plan["material"], parent=plan["parent"])
     except Exception:
         structure._truncate_nodes(node_count)
         raise
+    state.commit(plan)
     result.new_nodes = np.concatenate(ids) if ids else np.zeros(0, np.int32)
     result.node_sources, result.node_weights = plan["sources"], plan["weights"]
     result.removed, result.added = plan["remove"].astype(np.int32), added
@@ -386,8 +402,11 @@ def _distance_to(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def _positive(tables, entry, perm, cn, ce, edge_nodes, split_t, rest) -> np.ndarray:
-    """Whether every sub-tet of each cut tet is positive at the actual split points (rest positions)."""
+def _positive(tables, entry, perm, cn, t_local, rest) -> np.ndarray:
+    """Whether every sub-tet of each cut tet is positive at the actual split points (rest positions).
+
+    ``t_local`` (n, 6): each local edge's split parameter from its local first end (TET_EDGES order).
+    """
     refs = tables.refs[entry, perm].astype(np.int64)  # (n, S, 4)
     n = len(entry)
     pts = np.zeros((n, 29, 3))
@@ -396,11 +415,7 @@ def _positive(tables, entry, perm, cn, ce, edge_nodes, split_t, rest) -> np.ndar
     for kk in range(4):  # cut nodes sit where their node is
         pts[:, REF_NODE + 2 * kk] = pts[:, REF_NODE + 2 * kk + 1] = corner[:, kk]
     for j, (u, v) in enumerate(TET_EDGES):
-        e = ce[:, j]
-        t = split_t[e]
-        forward = edge_nodes[e, 0] == cn[:, u]
-        w = np.where(forward, t, 1.0 - t)[:, None]
-        p = corner[:, u] + w * (corner[:, v] - corner[:, u])
+        p = corner[:, u] + t_local[:, j, None] * (corner[:, v] - corner[:, u])
         pts[:, REF_SPLIT + 2 * j] = pts[:, REF_SPLIT + 2 * j + 1] = p
     for f in range(4):
         pts[:, REF_FACE + f] = corner[:, TET_FACES[f]].mean(axis=1)
@@ -414,6 +429,122 @@ def _positive(tables, entry, perm, cn, ce, edge_nodes, split_t, rest) -> np.ndar
                        corner[:, 3] - corner[:, 0])  # fmt: skip
     # a sub-tet thinner than 1e-6 of its parent counts as flat (float32 storage would invert it)
     return np.all(~valid | (vol > 1e-6 * parent[:, None]), axis=1)
+
+
+class _ParentState:
+    """The progressive-cut records (tets a blade stopped in) this cut may continue.
+
+    A parent's pieces are cut through the parent: hits on their edges other
+    than the parent's own uncut edges are dropped (``drop``), none of their
+    nodes may become a cut node (``protected``), and a parent whose uncut
+    edges this stroke cuts is split again from its accumulated code, reusing
+    its split points, so that a cut completed in two strokes has the topology
+    of the same cut made in one.
+    """
+
+    def __init__(self, structure, edge_nodes: np.ndarray):
+        self.structure = structure
+        pr = structure._parents
+        N, E = len(structure.node_rest), len(edge_nodes)
+        self.drop = np.zeros(E, dtype=bool)
+        self.is_protected = np.zeros(N, dtype=bool)
+        self.protected = np.zeros(0, dtype=np.int64)
+        self.edges = np.full((pr.count, 6), -1, dtype=np.int64)
+        alive = np.asarray(structure.cell_alive)
+        cp = np.asarray(structure.cell_parent)
+        self.children = np.flatnonzero(alive & (cp >= 0))
+        self.active = np.unique(cp[self.children])
+        if self.children.size:
+            self.drop[np.asarray(structure.cell_edges)[self.children].ravel()] = True
+            corners = pr["corners"][self.active]
+            ge = structure.find_edges(corners[:, TET_EDGES].reshape(-1, 2), device="cpu").reshape(-1, 6)
+            ge = np.where(pr["split"][self.active][:, :, 0] >= 0, -1, ge).astype(np.int64)
+            self.drop[ge[ge >= 0]] = False
+            self.edges[self.active] = ge
+            self.protected = np.unique(np.asarray(structure.cell_nodes)[self.children])
+            self.is_protected[self.protected] = True
+        # crack-front points on faces, by the face's corner triple: shared with the tet across the face
+        live = np.flatnonzero(pr["alive"])
+        fronts = pr["faces"][live]  # (P, 4)
+        tri = pr["corners"][live][:, TET_FACES]  # (P, 4, 3)
+        has = fronts >= 0
+        self.front_keys = _triple_keys(tri[has], N)
+        self.front_ids = fronts[has].astype(np.int64)
+        order = np.argsort(self.front_keys)
+        self.front_keys, self.front_ids = self.front_keys[order], self.front_ids[order]
+
+    def front_of(self, keys: np.ndarray) -> np.ndarray:
+        """Existing crack-front node of each face key, -1 where none."""
+        i = np.searchsorted(self.front_keys, keys)
+        i = np.minimum(i, max(len(self.front_keys) - 1, 0))
+        found = (len(self.front_keys) > 0) & (self.front_keys[i] == keys) if len(self.front_keys) else np.zeros(
+            len(keys), bool)  # fmt: skip
+        return np.where(found, self.front_ids[i] if len(self.front_ids) else -1, -1)
+
+    def commit(self, plan: dict) -> None:
+        """Write the records the cut made, changed and ended (after the topology edit succeeded)."""
+        pr = self.structure._parents
+        rec = plan["records"]
+        pr.arrays["alive"][plan["ended"]] = False
+        upd = rec["target"] >= 0
+        for name in ("corners", "split", "t", "code", "faces", "centre"):
+            pr.arrays[name][rec["target"][upd]] = rec[name][upd]
+        fresh = ~upd
+        if fresh.any():
+            ids = pr.extend(int(fresh.sum()), **{name: rec[name][fresh] for name in
+                                                 ("corners", "split", "t", "code", "faces", "centre")})  # fmt: skip
+            assert np.array_equal(ids, plan["new_record_ids"])
+
+
+def _triple_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
+    t = np.sort(np.asarray(tri, dtype=np.int64).reshape(-1, 3), axis=1)
+    n = max(int(node_count), 1) + 1
+    return (t[:, 0] * n + t[:, 1]) * n + t[:, 2]
+
+
+def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, split_t, node_cut) -> dict:
+    """The tets this cut changes: whole cells, and progressive parents whose own edges it cuts.
+
+    Per unit: corners (4 nodes), edge_code, node_code, new_edges (the global edge of each local edge this
+    stroke cuts, -1 else), old_split (split copies of edges cut before, -1 else), t (local split parameters),
+    parent (record id, -1 for a cell), cell (the cell, -1 for a parent).
+    """
+    n = len(cells)
+    cn = cell_nodes[cells].astype(np.int64)
+    ce = cell_edges[cells].astype(np.int64)
+    ecode = (codes & 63).astype(np.int64)
+    bits = (ecode[:, None] >> np.arange(6)) & 1
+    new_edges = np.where(bits == 1, ce, -1)
+    forward = edge_nodes[ce, 0] == cn[:, TET_EDGES[:, 0]]
+    t = np.where(bits == 1, np.where(forward, split_t[ce], 1.0 - split_t[ce]), -1.0)
+    units = {
+        "corners": cn, "edge_code": ecode, "node_code": (codes >> 6).astype(np.int64), "new_edges": new_edges,
+        "old_split": np.full((n, 6, 2), -1, dtype=np.int64), "t": t, "parent": np.full(n, -1, dtype=np.int64),
+        "cell": cells.astype(np.int64),
+    }  # fmt: skip
+    if not state.active.size:
+        return units
+    pr = state.structure._parents
+    act = state.active
+    ge = state.edges[act]  # (a, 6)
+    cut_now = (ge >= 0) & (edge_cut[np.maximum(ge, 0)] == 1)
+    moved = cut_now.any(axis=1)
+    if not moved.any():
+        return units
+    act, ge, cut_now = act[moved], ge[moved], cut_now[moved]
+    corners = pr["corners"][act].astype(np.int64)
+    old_split = pr["split"][act].astype(np.int64)
+    old_t = pr["t"][act].astype(np.float64)
+    code = pr["code"][act].astype(np.int64) | (cut_now * (1 << np.arange(6))).sum(axis=1)
+    new_e = np.where(cut_now, ge, -1)
+    forward = edge_nodes[np.maximum(ge, 0), 0] == corners[:, TET_EDGES[:, 0]]
+    st_ = split_t[np.maximum(ge, 0)]
+    t_par = np.where(cut_now, np.where(forward, st_, 1.0 - st_), old_t)
+    extra = {
+        "corners": corners, "edge_code": code, "node_code": np.zeros(len(act), np.int64), "new_edges": new_e,
+        "old_split": old_split, "t": t_par, "parent": act.astype(np.int64), "cell": np.full(len(act), -1, np.int64),
+    }  # fmt: skip
+    return {name: np.concatenate([units[name], extra[name]]) for name in units}
 
 
 class _NewNodes:
@@ -450,22 +581,30 @@ class _NewNodes:
         return ids
 
 
-def _subdivide(structure, tables, cells, entry, perm, cn, ce, cut_edges, split_t, node_cut, edge_nodes, rest,
+def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t, node_cut, edge_nodes, rest,
                positions) -> dict:  # fmt: skip
-    """New nodes and sub-tets of the cut tets (vectorized; module docstring, step 3)."""
-    n = len(cells)
+    """New nodes, sub-tets and progressive records of the changed tets (vectorized; module docstring, step 3)."""
+    cn = units["corners"]
+    n = len(cn)
     refs = tables.refs[entry, perm].astype(np.int64)  # (n, S, 4)
     valid = refs[..., 0] >= 0
     new = _NewNodes(len(structure.node_rest), rest, positions)
+    pr = structure._parents
+    is_parent = units["parent"] >= 0
 
-    # split points: copy 0 joined to the edge's first node, copy 1 to its second
+    # split points of this stroke: copy 0 joined to the edge's first node, copy 1 to its second
     split_ids = np.full((len(edge_nodes), 2), -1, dtype=np.int64)
     if len(cut_edges):
         a, b, t = edge_nodes[cut_edges, 0], edge_nodes[cut_edges, 1], split_t[cut_edges]
         split_ids[cut_edges, 0] = new.add("split", a, b, t)
         split_ids[cut_edges, 1] = new.add("split", a, b, t)
+    # per unit and local edge, the copy joined to its local first and second end
+    ne = units["new_edges"]
+    forward = edge_nodes[np.maximum(ne, 0), 0] == cn[:, TET_EDGES[:, 0]]
+    fresh = np.stack([np.where(forward, split_ids[np.maximum(ne, 0), 0], split_ids[np.maximum(ne, 0), 1]),
+                      np.where(forward, split_ids[np.maximum(ne, 0), 1], split_ids[np.maximum(ne, 0), 0])], axis=2)
+    split_of = np.where((ne >= 0)[:, :, None], fresh, units["old_split"])  # (n, 6, 2)
 
-    # map every reference to a global node
     ids = np.full(refs.shape, -1, dtype=np.int64)
     rows = np.broadcast_to(np.arange(n)[:, None, None], refs.shape)
     m = (refs >= 0) & (refs < 4)
@@ -473,39 +612,86 @@ def _subdivide(structure, tables, cells, entry, perm, cn, ce, cut_edges, split_t
     m = (refs >= REF_SPLIT) & (refs < REF_NODE)
     if m.any():
         j, end = (refs[m] - REF_SPLIT) // 2, (refs[m] - REF_SPLIT) % 2
-        e = ce[rows[m], j]
-        near = cn[rows[m], TET_EDGES[j, end]]  # the local end this copy is joined to
-        ids[m] = split_ids[e, np.where(edge_nodes[e, 0] == near, 0, 1)]
-    # crack fronts: one centre per fanned face (shared by its two tets), one per progressive cell
+        ids[m] = split_of[rows[m], j, end]
+    # crack fronts: one per fanned face (shared with the tet across it: reused if it exists), one per cell
+    face_front = np.full((n, 4), -1, dtype=np.int64)
     m = (refs >= REF_FACE) & (refs < REF_CELL)
     if m.any():
-        gface = np.asarray(structure.cell_faces)[cells][rows[m], refs[m] - REF_FACE]
-        uniq, inv = np.unique(gface, return_inverse=True)
-        ids[m] = new.centres(np.asarray(structure.face_nodes)[uniq])[inv.ravel()]
+        f = refs[m] - REF_FACE
+        tri = cn[rows[m][:, None], TET_FACES[f]]
+        keys = _triple_keys(tri, len(rest) + len(structure.node_rest))
+        uniq, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+        found = state.front_of(uniq)
+        need = found < 0
+        if need.any():
+            found[need] = new.centres(tri[first[need]])
+        ids[m] = found[inv.ravel()]
+        face_front[rows[m], f] = ids[m]
+    centre = np.full(n, -1, dtype=np.int64)
     m = refs == REF_CELL
     if m.any():
         prog = np.flatnonzero(m.any(axis=(1, 2)))
-        where = np.full(n, -1, dtype=np.int64)
-        where[prog] = new.centres(cn[prog])
-        ids[m] = where[rows[m]]
-    # cut nodes: one copy per set of sub-tet groups the blade separated
+        old = np.full(len(prog), -1, dtype=np.int64)
+        back = is_parent[prog]
+        old[back] = pr["centre"][units["parent"][prog][back]]
+        need = old < 0
+        if need.any():
+            old[need] = new.centres(cn[prog[need]])
+        centre[prog] = old
+        ids[m] = centre[rows[m]]
+    # cut nodes (cells only: a parent's nodes are never cut): one copy per set of groups the blade separated
     separated = fronts = np.zeros(0, np.int64)
     m = (refs >= REF_NODE) & (refs < REF_FACE)
     if m.any():
-        copies, separated, fronts = _cut_node_copies(structure, tables, cells, entry, cn, refs, node_cut, new)
+        cells_mask = ~is_parent
+        sub = np.flatnonzero(cells_mask)
+        copies, separated, fronts = _cut_node_copies(structure, tables, units["cell"][sub], entry[sub], cn[sub],
+                                                     refs[sub], node_cut, new)  # fmt: skip
+        full = np.full((n, 4, 2), -1, dtype=np.int64)
+        full[sub] = copies
         r = refs[m] - REF_NODE
-        ids[m] = copies[rows[m], r // 2, r % 2]
+        ids[m] = full[rows[m], r // 2, r % 2]
 
     # cells left exactly as they were (intact codes whose cut nodes kept their id) are not replaced
-    same = (tables.count[entry, perm] == 1) & np.all(np.sort(ids[:, 0], axis=1) == np.sort(cn, axis=1), axis=1)
+    same = ~is_parent & (tables.count[entry, perm] == 1) & np.all(
+        np.sort(ids[:, 0], axis=1) == np.sort(cn, axis=1), axis=1)  # fmt: skip
     replace = ~same
+    # progressive units keep (or get) a record; parents that are no longer progressive end theirs
+    progressive = np.isin(tables.kind[entry], ("C", "D", "E"))
+    fresh_rec = progressive & ~is_parent
+    new_ids = np.arange(pr.count, pr.count + int(fresh_rec.sum()), dtype=np.int64)
+    record = np.where(is_parent, units["parent"], -1)
+    record[fresh_rec] = new_ids
+    record[~progressive] = -1
+    keep_rec = progressive
+    records = {
+        "target": np.where(is_parent, units["parent"], -1)[keep_rec],
+        "corners": cn[keep_rec], "split": split_of[keep_rec], "t": units["t"][keep_rec],
+        "code": units["edge_code"][keep_rec], "faces": face_front[keep_rec], "centre": centre[keep_rec],
+    }  # fmt: skip
+    # what goes: replaced cells, and every live piece of a parent split again
+    parents_split = units["parent"][is_parent]
+    cp = np.asarray(structure.cell_parent)
+    children = state.children[np.isin(cp[state.children], parents_split)]
+    remove = np.concatenate([units["cell"][replace & ~is_parent], children]).astype(np.int64)
+    material_of = np.asarray(structure.cell_material)
+    unit_material = np.where(is_parent, -1, material_of[np.maximum(units["cell"], 0)])
+    if is_parent.any():
+        # a parent's material is its pieces' (all the same)
+        first_child = {int(p): int(c) for c, p in zip(children[::-1], cp[children][::-1])}
+        unit_material[is_parent] = [material_of[first_child[int(p)]] for p in parents_split]
+    counts = valid[replace].sum(axis=1)
     return {
         "nodes": new.chunks,
         "separated": separated,
         "fronts": fronts,
-        "remove": cells[replace],
+        "remove": remove,
         "tets": ids[replace][valid[replace]],
-        "material": np.repeat(np.asarray(structure.cell_material)[cells[replace]], valid[replace].sum(axis=1)),
+        "material": np.repeat(unit_material[replace], counts),
+        "parent": np.repeat(record[replace], counts),
+        "records": records,
+        "new_record_ids": new_ids,
+        "ended": parents_split[~progressive[is_parent]],
         "sources": np.concatenate(new.sources).astype(np.int32) if new.sources else np.zeros((0, 2), np.int32),
         "weights": np.concatenate(new.weights).astype(np.float32) if new.weights else np.zeros(0, np.float32),
     }

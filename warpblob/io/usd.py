@@ -31,6 +31,7 @@ import numpy as np
 from pxr import Gf, Pcp, Sdf, Tf, Usd, UsdGeom, Vt
 
 from .._errors import ModelError, SceneError
+from ..mesh._tetmesh import _MATERIAL_ATTR
 from ..tree import (
     ISO_DISTANCE,
     Bend,
@@ -65,6 +66,8 @@ __all__ = ["save_model", "load_model", "FORMAT_VERSION", "METERS_PER_UNIT"]
 FORMAT_VERSION = 1
 #: Default stage ``metersPerUnit``: one model unit is one centimetre.
 METERS_PER_UNIT = 0.01
+#: the uniform bool primvar (``primvars:isCut``) that marks the faces a blade made
+IS_CUT_PRIMVAR = "isCut"
 
 _NS = "warpblob"
 _KIND = "warpblob:kind"
@@ -321,7 +324,9 @@ def author_mesh(stage, path: str, mesh):
     """Define a ``UsdGeom.Mesh`` at ``path`` from a :class:`~warpblob.mesh.SurfaceMesh`.
 
     Writes points, faceVertexCounts/Indices (counter-clockwise, rightHanded),
-    vertex normals, vertex ``primvars:displayColor`` and the extent.
+    vertex normals, vertex ``primvars:displayColor``, the extent and, for the
+    boundary of a cut tet mesh (``mesh.is_cut`` set), the uniform bool
+    primvar :data:`IS_CUT_PRIMVAR` (one value per face).
     """
     geom = UsdGeom.Mesh.Define(stage, path)
     points = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(mesh.vertices, dtype=np.float32))
@@ -335,6 +340,30 @@ def author_mesh(stage, path: str, mesh):
     color = geom.CreateDisplayColorPrimvar(UsdGeom.Tokens.vertex)
     color.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(mesh.colors, dtype=np.float32)))
     geom.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
+    if getattr(mesh, "is_cut", None) is not None:
+        cut = UsdGeom.PrimvarsAPI(geom).CreatePrimvar(IS_CUT_PRIMVAR, Sdf.ValueTypeNames.BoolArray, UsdGeom.Tokens.uniform)
+        cut.Set(Vt.BoolArray.FromNumpy(np.ascontiguousarray(mesh.is_cut, dtype=bool)))
+    return geom
+
+
+def author_tetmesh(stage, path: str, mesh):
+    """Define a ``UsdGeom.TetMesh`` at ``path`` from a :class:`~warpblob.mesh.TetMesh`.
+
+    Writes points, tetVertexIndices, surfaceFaceVertexIndices (the boundary,
+    counter-clockwise from outside), orientation rightHanded, the extent and,
+    when the mesh has one, the int array ``warpblob:material`` (one per tet).
+    """
+    geom = UsdGeom.TetMesh.Define(stage, path)
+    points = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(mesh.nodes, dtype=np.float32))
+    geom.CreatePointsAttr(points)
+    geom.CreateTetVertexIndicesAttr(Vt.Vec4iArray.FromNumpy(np.ascontiguousarray(mesh.tets, dtype=np.int32)))
+    faces = np.ascontiguousarray(mesh.surface_faces(), dtype=np.int32)
+    geom.CreateSurfaceFaceVertexIndicesAttr(Vt.Vec3iArray.FromNumpy(faces))
+    geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+    geom.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
+    if mesh.material is not None:
+        attr = geom.GetPrim().CreateAttribute(_MATERIAL_ATTR, Sdf.ValueTypeNames.IntArray, custom=True)
+        attr.Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(mesh.material, dtype=np.int32)))
     return geom
 
 
@@ -430,7 +459,10 @@ def load_mesh(path, prim_path: str | None = None):
     normals = np.asarray(geom.GetNormalsAttr().Get() or np.zeros((len(points), 3)), dtype=np.float32).reshape(-1, 3)
     colors = geom.GetDisplayColorPrimvar().Get()
     colors = np.asarray(colors if colors is not None and len(colors) == len(points) else np.ones((len(points), 3)), dtype=np.float32)
-    return SurfaceMesh(points, faces, normals, colors.reshape(-1, 3))
+    cut = UsdGeom.PrimvarsAPI(geom).GetPrimvar(IS_CUT_PRIMVAR)
+    is_cut = cut.Get() if cut and cut.HasValue() else None
+    is_cut = np.asarray(is_cut, dtype=bool) if is_cut is not None and len(is_cut) == len(faces) else None
+    return SurfaceMesh(points, faces, normals, colors.reshape(-1, 3), is_cut=is_cut)
 
 
 def _unwrap(node):

@@ -493,6 +493,9 @@ def _frozen(arr: np.ndarray) -> np.ndarray:
 
 def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
     """``index_map[refs]`` with -1 kept as -1."""
+    refs = np.asarray(refs)
+    if not len(index_map):
+        return np.full(refs.shape, -1, dtype=np.int32)
     return np.where(refs >= 0, index_map[np.maximum(refs, 0)], -1).astype(np.int32)
 
 
@@ -576,10 +579,31 @@ def _stores() -> dict:
                 "faces": ((4,), np.int32, -1),
                 "edges": ((6,), np.int32, -1),
                 "material": ((), np.int32, 0),
+                "parent": ((), np.int32, -1),
                 "alive": alive,
             }
         ),
     }
+
+
+def _parent_store() -> _Store:
+    """Cut state of the tets a blade stopped in (progressive cuts): one row per such parent tet.
+
+    corners: its four nodes (positive); split: per local edge (TET_EDGES order) the split copies joined to
+    the edge's local first and second end (-1 uncut); t: the split parameter from the first end; code: the
+    6-bit cut-edge code; faces: the crack-front node of each face it fans (-1 none); centre: its cell-centre node.
+    """
+    return _Store(
+        {
+            "corners": ((4,), np.int32, -1),
+            "split": ((6, 2), np.int32, -1),
+            "t": ((6,), np.float32, -1.0),
+            "code": ((), np.int32, 0),
+            "faces": ((4,), np.int32, -1),
+            "centre": ((), np.int32, -1),
+            "alive": ((), np.bool_, False),
+        }
+    )
 
 
 # ---------------------------------------------------------------------------
@@ -714,6 +738,7 @@ class TetStructure:
 
     def __init__(self):
         self._stores = _stores()
+        self._parents = _parent_store()
         self._observers: list[Callable[[str, str, int], None]] = []
         self._pending: dict[str, list[int]] = {k: [] for k in KINDS}
         self.last_remap: dict[str, np.ndarray] = {}
@@ -876,6 +901,10 @@ class TetStructure:
     cell_edges = property(lambda self: self._view("cell", "edges"), doc="(C, 6) int32 in TET_EDGES order.")
     cell_material = property(lambda self: self._view("cell", "material"), doc="(C,) int32 material ids.")
     cell_alive = property(lambda self: self._view("cell", "alive"), doc="(C,) bool.")
+    cell_parent = property(
+        lambda self: self._view("cell", "parent"),
+        doc="(C,) int32 the progressive-cut record (a tet a blade stopped in) each cell is a piece of, -1 none.",
+    )
 
     def _count(self, kind: str) -> int:
         return int(np.count_nonzero(self._stores[kind]["alive"]))
@@ -1340,7 +1369,7 @@ class TetStructure:
             self._emit("node", "insert", ids)
         return ids
 
-    def replace_cells(self, remove, nodes, material) -> np.ndarray:
+    def replace_cells(self, remove, nodes, material, *, parent=None) -> np.ndarray:
         """Remove cells and insert others in one batch (vectorized; the cutting path).
 
         Faces of the new cells that coincide with faces of the removed cells
@@ -1357,6 +1386,7 @@ class TetStructure:
             remove: (R,) live cell indices.
             nodes: (C, 4) int node indices of the new cells.
             material: (C,) int material ids (or one id for all).
+            parent: (C,) int progressive-cut parent record of each new cell (-1 none; cutting's state).
 
         Returns:
             (C,) int32 indices of the new cells.
@@ -1440,7 +1470,8 @@ class TetStructure:
             self._emit("face", "insert", face_ids)
         cell_faces = face_of[inv_new].reshape(C, 4)
 
-        cell_ids = cells.extend(C, nodes=new, faces=cell_faces, edges=cell_edges, material=mat)
+        par = np.full(C, -1, dtype=np.int32) if parent is None else np.broadcast_to(np.asarray(parent, np.int32), (C,))
+        cell_ids = cells.extend(C, nodes=new, faces=cell_faces, edges=cell_edges, material=mat, parent=par)
         # link: each use takes the next free slot of its face (kept cells first)
         f_flat = cell_faces.ravel()
         order = np.argsort(f_flat, kind="stable")
@@ -1636,11 +1667,25 @@ class TetStructure:
             cells=_remap(maps["cell"], faces["cells"][f]),
             alive=np.ones(f.sum(), dtype=bool),
         )
+        # parent records of progressive cuts: those with a live child stay, renumbered, their nodes remapped
+        pr = self._parents
+        child_parent = cells["parent"][c]
+        used = np.zeros(pr.count, dtype=bool)
+        used[child_parent[child_parent >= 0]] = True
+        used &= pr["alive"]
+        pmap = np.full(pr.count, -1, dtype=np.int32)
+        pmap[used] = np.arange(int(used.sum()), dtype=np.int32)
+        pr.load(
+            corners=_remap(maps["node"], pr["corners"][used]), split=_remap(maps["node"], pr["split"][used]),
+            t=pr["t"][used], code=pr["code"][used], faces=_remap(maps["node"], pr["faces"][used]),
+            centre=_remap(maps["node"], pr["centre"][used]), alive=np.ones(int(used.sum()), dtype=bool),
+        )  # fmt: skip
         cells.load(
             nodes=_remap(maps["node"], cells["nodes"][c]),
             faces=_remap(maps["face"], cells["faces"][c]),
             edges=_remap(maps["edge"], cells["edges"][c]),
             material=cells["material"][c],
+            parent=_remap(pmap, child_parent),
             alive=np.ones(c.sum(), dtype=bool),
         )
         self._pending = {k: [] for k in KINDS}
