@@ -205,7 +205,9 @@ def test_cut_result_counts_and_table_kinds():
     w = r.node_weights[split][:, None]
     assert np.allclose(rest[r.new_nodes[split]], (1 - w) * rest[a[split]] + w * rest[b[split]], atol=1e-6)
     assert 2 * r.edges_cut == split.sum()
-    assert r.new_cells_per_cut_cell > 1
+    # a plane through everything splits completely: A 4, B 6, X 3, Y 2 sub-tets
+    assert r.split_cells == sum(r.tets_split.get(kind, 0) for kind in ("A", "B", "X", "Y"))
+    assert 2 <= r.new_cells_per_cut_cell <= 6 and r.split_added <= r.tets_added
     # deferred removal: the removed cells are pending until the garbage collection
     assert not np.asarray(s.cell_alive)[r.removed].any()
     maps = s.collect_garbage()
