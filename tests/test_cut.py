@@ -304,3 +304,28 @@ def test_a_cut_in_two_strokes_has_the_topology_of_one_stroke(stop):
     assert second.components == 2 and two.cell_count == one.cell_count
     np.testing.assert_allclose(_cell_signature(two), _cell_signature(one), atol=1e-5)
     assert np.all(np.asarray(two.cell_parent)[np.asarray(two.cell_alive)] == -1)  # every record completed
+
+
+def test_drill_bores_a_closed_plug_out_of_a_slab():
+    """A trephine through a slab: the plug is one closed piece whose volume is the wall polygon's prism."""
+    m = box_tetmesh((0, 0, 0), (1, 1, 0.3), (12, 12, 4))
+    s = TetStructure.from_tetmesh(m)
+    drill = wb.tools.Drill(0.2, 0.6, segments=16)
+    path = wb.tools.Path.line((0.51, 0.49, 0.5), (0.51, 0.49, -0.2), 1.0, align=True)
+    sweep = SweepSurface.from_path(drill, path, dt=0.1)
+    r = cut(s, sweep)
+    tm = _invariants(s, 0.3)
+    assert r.components == 2
+    labels = s.components()[np.asarray(s.cell_alive)]
+    plug = int(np.argmin(np.bincount(labels)))
+    volume = tm.volumes()[labels == plug].sum()
+    prism = 16 / 2 * 0.2**2 * np.sin(2 * np.pi / 16) * 0.3  # the 16-gon wall's area x the slab
+    wall_area = 16 * 2 * 0.2 * np.sin(np.pi / 16) * 0.3
+    edge = np.sqrt((1 / 12) ** 2 * 2 + (0.3 / 4) ** 2)
+    assert abs(volume - prism) <= wall_area * SNAP * edge
+    c = tm.nodes[tm.tets[labels == plug]].mean(axis=1)
+    assert np.all(np.hypot(c[:, 0] - 0.51, c[:, 1] - 0.49) < 0.2 + SNAP * edge)
+    surf = s.surface()
+    assert surf.is_closed_manifold() and surf.shell_count() == 2
+    # the sweep is ordered by time: the first triangles are the top ring's, all segments
+    assert set(sweep.strips[: 2 * 16].tolist()) == set(range(16))

@@ -41,7 +41,9 @@ class SweepSurface:
     Attributes:
         triangles: (M, 3, 3) float64 triangle corners, model units.
         strips: (M,) int32 the strip each triangle belongs to (one per blade,
-            one per drill wall segment); a mesh edge keeps one cut per sweep.
+            one per drill wall segment). Triangles are in the order they are
+            swept (a drill's: sample by sample, every segment of a sample
+            together): a mesh edge keeps its first hit.
 
     Example:
         >>> import numpy as np
@@ -205,9 +207,11 @@ class SweepSurface:
             top, top_next = quads[0, k, 3], quads[0, k, 2]
             a = np.concatenate([[top], bit])
             b = np.concatenate([[top_next], bit_next])
-            tris.append(_strip(a, b))
-            strips.append(np.full(2 * (len(a) - 1), k, dtype=np.int32))
-        return cls(np.concatenate(tris), np.concatenate(strips))
+            tris.append(_strip(a, b).reshape(-1, 2, 3, 3))
+            strips.append(np.full((len(a) - 1, 2), k, dtype=np.int32))
+        # time-major: an edge keeps its first hit by triangle order, so order the triangles by when they are swept
+        tri = np.stack(tris, axis=1).reshape(-1, 3, 3)
+        return cls(tri, np.stack(strips, axis=1).reshape(-1))
 
 
 def _strip(a: np.ndarray, b: np.ndarray) -> np.ndarray:
