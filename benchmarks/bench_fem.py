@@ -1,6 +1,6 @@
 """FEM benchmark: warpblob's implicit co-rotational FEM vs Newton and pbatoolkit on the same meshes.
 
-Run:  python benchmarks/bench_fem.py [--models beam,tumor] [--sizes 10000,50000,200000]
+Run:  python benchmarks/bench_fem.py [--models beam,tumor] [--sizes 10000,50000,200000] [--preconditioner P]
       [--peers newton,pbat] [--threads 1,2] [--budget 300] [--quick] [--json PATH]
 
 The peers go in a virtual environment of their own (newton may want another
@@ -261,6 +261,7 @@ def worker(spec: dict) -> dict:
             out["stages_ms"] = {k: 1e3 * v for k, v in st.get("seconds", {}).items()}
             out["cg_iterations"] = st.get("cg_iterations")
             out["residual"] = st.get("residual")
+            out["coarse_size"] = st.get("coarse_size")
         if spec["accuracy"]:
             still, t0 = 0, time.perf_counter()
             while len(deflection) < spec["frames"] and time.perf_counter() - t0 < spec["budget_s"]:
@@ -303,7 +304,8 @@ def launch(spec: dict, timeout_s: float) -> dict:
 
 def setting_text(solver: str, s: dict) -> str:
     if solver == "warpblob":
-        return f"dt 1/60, tol {s['tolerance']:g}" if "tolerance" in s else "dt 1/60"
+        text = f"dt 1/60, tol {s['tolerance']:g}" if "tolerance" in s else "dt 1/60"
+        return f"{text}, {s['preconditioner']}" if "preconditioner" in s else text
     parts = [f"{s.get('substeps', 1)} sub"]
     if "iterations" in s:
         parts.append(f"{s['iterations']} it")
@@ -384,7 +386,8 @@ def bench_mesh(p, path, refs, args, peers, matched, ladders, first: bool, ladder
         print(f"  {solver:12s} {row['setting_text']:14s} {threads}t: {ms}{err} {note}", flush=True)
         return row
 
-    wb_rows = {th: run("warpblob", {}, th, "warpblob", accuracy=th == threads_all[0]) for th in threads_all}
+    mine = {"preconditioner": args.preconditioner} if args.preconditioner else {}
+    wb_rows = {th: run("warpblob", mine, th, "warpblob", accuracy=th == threads_all[0]) for th in threads_all}
     target = max(args.match, wb_rows[threads_all[0]].get("err_mesh") or 0.0)
     for solver in peers:
         threads = threads_all if ADAPTERS[solver].threaded else [1]
@@ -433,11 +436,13 @@ def main(argv=None):
     ap.add_argument("--match", type=float, help="equal-accuracy target for err mesh, at least warpblob's (0.02)")
     ap.add_argument("--timeout", type=float, help="seconds before a solver process is stopped (default 1800)")
     ap.add_argument("--direct-max", type=int, help="largest mesh (tets) for a direct static solve (60000)")
+    ap.add_argument("--preconditioner", help="warpblob's Simulation(preconditioner=...): two_level or "
+                    "block_jacobi (default: the Simulation's default)")  # fmt: skip
     ap.add_argument("--contact-sizes", help="tumor tet counts of the probe contact timing, '' for none "
                     "(default 10000,50000,200000)")  # fmt: skip
     full = {"models": "beam,tumor", "sizes": "10000,50000,200000", "peers": "newton,pbat", "threads": "1,2",
             "ladder_models": "beam,tumor", "frames": 180, "budget": 300.0, "match": 0.02, "timeout": 1800.0,
-            "direct_max": 60_000, "repeat": 5, "contact_sizes": "10000,50000,200000"}  # fmt: skip
+            "direct_max": 60_000, "repeat": 5, "contact_sizes": "10000,50000,200000", "preconditioner": ""}  # fmt: skip
     quick = {**full, "sizes": "2000", "ladder_models": "beam", "frames": 120, "budget": 8.0, "timeout": 300.0,
              "repeat": 3, "contact_sizes": "3000"}  # fmt: skip
     args = arguments(ap, full, quick, argv)
@@ -539,6 +544,7 @@ def report(rows: list[dict], matched: dict) -> None:
         names = list(stage_rows[0]["stages_ms"])
         cols = [("model", "model", "s"), ("tets", "tets", "d"), ("threads", "thr", "d"), ("ms", "ms/frame", ".1f")]
         cols += [(f"stage_{k}_ms", k, ".1f") for k in names] + [("cg_iterations", "cg it", "d")]
+        cols += [("coarse_size", "coarse", "d")]
         print("warpblob by stage, ms of the median frame:")
         print(table(stage_rows, cols))
     for (model, solver), m in matched.items():

@@ -15,8 +15,8 @@ import warp as wp
 import warpblob as wb
 from warpblob import SimulationError
 from warpblob.mesh import TetMesh, TetStructure, box_tetmesh
+from warpblob.sim import _coarse, _simulation, _solver
 from warpblob.sim import _kernels as k
-from warpblob.sim import _simulation, _solver
 
 E, NU, RHO = 1e5, 0.3, 1000.0
 
@@ -294,15 +294,22 @@ def test_energy_does_not_grow_over_1000_undamped_steps():
     assert np.all(np.diff(history) <= 1e-4 * e0)
 
 
-def test_results_are_bit_identical_for_one_and_two_threads(monkeypatch):
-    # small grains split every launch into pieces, so the threads really share the work
+@pytest.mark.parametrize("preconditioner", ["two_level", "block_jacobi"])
+def test_results_are_bit_identical_for_one_and_two_threads(monkeypatch, preconditioner):
+    # small grains split every launch into pieces, so the threads really share the work; small aggregates
+    # give the coarse space several (its coupling and prolongation launches split too)
     monkeypatch.setattr(_solver, "TET_GRAIN", 8)
     monkeypatch.setattr(_solver, "NODE_GRAIN", 8)
     monkeypatch.setattr(_solver, "BLOCK_NODES", 4)
+    monkeypatch.setattr(_coarse, "COUPLE_GRAIN", 8)
+    monkeypatch.setattr(_coarse, "AGGREGATE_NODES", 8)
     mesh = block((6, 3, 3))
     runs = []
     for threads in (1, 2):
-        sim = simulation(mesh, gravity=(0, 0, -9.81), fixed=mesh.nodes[:, 0] == 0, ground=(-0.05, 0.4), threads=threads)
+        sim = simulation(mesh, gravity=(0, 0, -9.81), fixed=mesh.nodes[:, 0] == 0, ground=(-0.05, 0.4), threads=threads,
+                         preconditioner=preconditioner)  # fmt: skip
+        if preconditioner == "two_level":
+            assert sim.stats["coarse_size"] > 6 * 4
         sim.velocities = np.tile([0.5, 0.0, 0.0], (mesh.node_count, 1))
         sim.step(8)
         runs.append((sim.positions, sim.velocities, sim.stats["cg_iterations_total"], sim.volume()))
@@ -524,6 +531,36 @@ def test_non_finite_state_is_refused():
         sim.velocities = np.zeros((3, 3))
     with pytest.raises(SimulationError, match="TetMesh or a TetStructure"):
         simulation(mesh.nodes)
+
+
+def test_the_divergence_check_reduces_like_numpy():
+    mesh = block()
+    sim = simulation(mesh, gravity=(0, 0, -9.81), fixed=mesh.nodes[:, 0] == 0)
+    sim.external_forces = np.tile([0.0, 2.0, 0.0], (mesh.node_count, 1))
+    sim.step()
+    sim.fixed_positions = sim.fixed_positions + np.array([0.0, 0.0, 0.01], np.float32)
+    sim.step()  # the fixed nodes move: the constraints do work
+    cur = sim._cur
+    x0, x1, v1, state = sim._x[1 - cur], sim._x[cur], sim._v[cur], sim._state
+    bad, sums = sim._reduce(x0, x1, v1, state)
+    assert bad == -1
+    m, v = sim.masses, v1.numpy().astype(np.float64)
+    dx = x1.numpy().astype(np.float64) - x0.numpy()
+    expected = {
+        "kinetic": 0.5 * np.dot(m, (v**2).sum(axis=1)),
+        "elastic": state.energy.numpy().astype(np.float64).sum(),
+        "gravity": np.dot(m, dx @ np.array([0, 0, -9.81])),
+        "external": np.sum(sim.external_forces * dx),
+        "constraint": np.abs(np.sum(state.node_force.numpy() * sim._moved.numpy(), axis=1)).sum(),
+    }
+    assert sums["constraint"] > 0 and sums["external"] != 0
+    for name, value in expected.items():
+        assert sums[name] == pytest.approx(value, rel=1e-5, abs=1e-12), name
+    broken = wp.clone(v1)
+    values = broken.numpy()
+    values[[7, 11]] = np.nan
+    broken.assign(values)
+    assert sim._reduce(x0, x1, broken, state)[0] == 7
 
 
 def test_a_diverging_step_raises_and_keeps_the_previous_state(monkeypatch):

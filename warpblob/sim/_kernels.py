@@ -799,3 +799,353 @@ def interpolate_points_kernel(
     b = point_bary[i]
     p0 = x[tet[0]]
     out[i] = p0 + b[1] * (x[tet[1]] - p0) + b[2] * (x[tet[2]] - p0) + b[3] * (x[tet[3]] - p0)
+
+
+# -- two-level preconditioner (warpblob.sim._coarse) ----------------------------------------------
+# Each node ``i`` of aggregate ``g`` carries the six rigid modes of ``g`` as the rows of
+# ``Phi_i = [I, -[d_i]x]`` (3 x 6; ``d_i`` is its offset from the aggregate's centroid over the
+# aggregate's size): ``Phi_i (t, w) = t + w x d_i``. Per-tet products go to per-tet slots and are
+# gathered in a fixed order, like the corner arrays, so the coarse matrix is the same for any thread count.
+
+
+@wp.func
+def mode_row(d: wp.vec3, k: int) -> wp.spatial_vector:
+    """Row ``k`` of ``Phi = [I, -[d]x]``: component ``k`` of the displacements of the six modes."""
+    if k == 0:
+        return wp.spatial_vector(1.0, 0.0, 0.0, 0.0, d[2], -d[1])
+    if k == 1:
+        return wp.spatial_vector(0.0, 1.0, 0.0, -d[2], 0.0, d[0])
+    return wp.spatial_vector(0.0, 0.0, 1.0, d[1], -d[0], 0.0)
+
+
+@wp.func
+def mode_restrict(d: wp.vec3, s: wp.vec3, u: wp.vec3) -> wp.spatial_vector:
+    """``Phi^T S u = (S u, d x S u)``: a node's vector restricted to its aggregate's modes."""
+    v = wp.cw_mul(s, u)
+    w = wp.cross(d, v)
+    return wp.spatial_vector(v[0], v[1], v[2], w[0], w[1], w[2])
+
+
+@wp.func
+def mode_mass(d: wp.vec3, s: wp.vec3) -> wp.spatial_matrix:
+    """``Phi^T S Phi``: a node's unit mass seen by its aggregate's modes."""
+    out = wp.spatial_matrix()
+    for k in range(3):
+        if s[k] != 0.0:
+            row = mode_row(d, k)
+            out += wp.outer(row, row)
+    return out
+
+
+@wp.func
+def corner_gradient(rotated: wp.mat33, a: int) -> wp.vec3:
+    """``n_a = R g_a``: row ``a - 1`` of ``Dm^-1 R^T`` (``n_0 = -(n_1 + n_2 + n_3)``)."""
+    if a == 0:
+        return -(
+            wp.vec3(rotated[0, 0], rotated[0, 1], rotated[0, 2])
+            + wp.vec3(rotated[1, 0], rotated[1, 1], rotated[1, 2])
+            + wp.vec3(rotated[2, 0], rotated[2, 1], rotated[2, 2])
+        )
+    return wp.vec3(rotated[a - 1, 0], rotated[a - 1, 1], rotated[a - 1, 2])
+
+
+@wp.kernel(enable_backward=False)
+def frame_aggregates_kernel(
+    x: wp.array(dtype=wp.vec3),
+    aggregate_offsets: wp.array(dtype=wp.int32),
+    aggregate_nodes: wp.array(dtype=wp.int32),
+    scale: float,
+    offset: int,
+    node_mode: wp.array(dtype=wp.vec3),
+):
+    """Per aggregate: its nodes' offsets ``d_i = (x_i - c) / scale`` from their centroid ``c``."""
+    g = wp.tid() + offset
+    lo = aggregate_offsets[g]
+    hi = aggregate_offsets[g + 1]
+    c = wp.vec3()
+    for k in range(lo, hi):
+        c += x[aggregate_nodes[k]]
+    c = c / float(hi - lo)
+    for k in range(lo, hi):
+        i = aggregate_nodes[k]
+        node_mode[i] = (x[i] - c) / scale
+
+
+@wp.kernel(enable_backward=False)
+def couple_tets_kernel(
+    tets: wp.array(dtype=wp.vec4i),
+    volume: wp.array(dtype=float),
+    mu: wp.array(dtype=float),
+    lam: wp.array(dtype=float),
+    rotated: wp.array(dtype=wp.mat33),
+    axes: wp.array(dtype=wp.vec3),
+    node_mode: wp.array(dtype=wp.vec3),
+    pair_slot: wp.array(dtype=wp.int32),
+    c_stiff: float,
+    offset: int,
+    slots: wp.array(dtype=wp.spatial_matrix),
+):
+    """Per tet, ``c_stiff Phi_a^T S_a K'_ab S_b Phi_b`` for its 16 corner pairs, summed into its slots.
+
+    ``pair_slot[16 t + 4 a + b]`` is the slot of the aggregate pair of corners
+    ``(a, b)``; a tet owns its slots (zeroed before), so the sums need no
+    atomics. With ``K'_ab = V (mu (n_a . n_b) I + mu n_b n_a^T + lambda n_a n_b^T)``
+    (:func:`multiply_elements_kernel`) and ``U = S Phi``, the block is
+    ``V (mu (n_a . n_b) U_a^T U_b + mu (U_a^T n_b)(U_b^T n_a)^T + lambda (U_a^T n_a)(U_b^T n_b)^T)``;
+    the pair ``(b, a)`` gets its transpose.
+    """
+    t = wp.tid() + offset
+    V = volume[t]
+    if V == 0.0:
+        return
+    tet = tets[t]
+    M = rotated[t]
+    m = mu[t]
+    l = lam[t]
+    for a in range(4):
+        na = corner_gradient(M, a)
+        da = node_mode[tet[a]]
+        sa = axes[tet[a]]
+        qa = mode_restrict(da, sa, na)
+        for b in range(a, 4):
+            nb = corner_gradient(M, b)
+            db = node_mode[tet[b]]
+            sb = axes[tet[b]]
+            W = l * wp.outer(qa, mode_restrict(db, sb, nb)) + m * wp.outer(mode_restrict(da, sa, nb),
+                                                                              mode_restrict(db, sb, na))  # fmt: skip
+            c = m * wp.dot(na, nb)
+            for k in range(3):
+                if sa[k] * sb[k] != 0.0:
+                    W += c * wp.outer(mode_row(da, k), mode_row(db, k))
+            W = (c_stiff * V) * W
+            ab = pair_slot[16 * t + 4 * a + b]
+            slots[ab] = slots[ab] + W
+            if b != a:
+                ba = pair_slot[16 * t + 4 * b + a]
+                slots[ba] = slots[ba] + wp.transpose(W)
+
+
+@wp.kernel(enable_backward=False)
+def assemble_coarse_kernel(
+    pair_offsets: wp.array(dtype=wp.int32),
+    pair_slots: wp.array(dtype=wp.int32),
+    pair_aggregates: wp.array(dtype=wp.vec2i),
+    slots: wp.array(dtype=wp.spatial_matrix),
+    aggregate_offsets: wp.array(dtype=wp.int32),
+    aggregate_nodes: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=float),
+    axes: wp.array(dtype=wp.vec3),
+    node_mode: wp.array(dtype=wp.vec3),
+    c_mass: float,
+    offset: int,
+    coarse: wp.array2d(dtype=wp.spatial_matrix),
+):
+    """Block ``(g, h)`` of the coarse matrix ``P^T A' P``: its tets' slots in order, plus on the diagonal
+    ``c_mass sum_i m_i Phi_i^T S_i Phi_i`` over the aggregate's nodes."""
+    p = wp.tid() + offset
+    gh = pair_aggregates[p]
+    W = wp.spatial_matrix()
+    for k in range(pair_offsets[p], pair_offsets[p + 1]):
+        W += slots[pair_slots[k]]
+    if gh[0] == gh[1]:
+        for k in range(aggregate_offsets[gh[0]], aggregate_offsets[gh[0] + 1]):
+            i = aggregate_nodes[k]
+            W += (c_mass * mass[i]) * mode_mass(node_mode[i], axes[i])
+    coarse[gh[0], gh[1]] = W
+
+
+@wp.kernel(enable_backward=False)
+def count_changes_kernel(
+    axes: wp.array(dtype=wp.vec3),
+    reference: wp.array(dtype=wp.vec3),
+    offset: int,
+    count: wp.array(dtype=wp.int32),
+):
+    """``count[0] +=`` the nodes whose free axes differ from ``reference`` (an integer sum: any order gives it)."""
+    i = wp.tid() + offset
+    if wp.length_sq(axes[i] - reference[i]) != 0.0:
+        wp.atomic_add(count, 0, 1)
+
+
+@wp.kernel(enable_backward=False)
+def restrict_kernel(
+    aggregate_offsets: wp.array(dtype=wp.int32),
+    aggregate_nodes: wp.array(dtype=wp.int32),
+    axes: wp.array(dtype=wp.vec3),
+    node_mode: wp.array(dtype=wp.vec3),
+    r: wp.array(dtype=wp.vec3),
+    offset: int,
+    rc: wp.array(dtype=wp.spatial_vector),
+):
+    """``rc = P^T r``: per aggregate, ``sum_i Phi_i^T S_i r_i`` over its nodes in order."""
+    g = wp.tid() + offset
+    s = wp.spatial_vector()
+    for k in range(aggregate_offsets[g], aggregate_offsets[g + 1]):
+        i = aggregate_nodes[k]
+        s += mode_restrict(node_mode[i], axes[i], r[i])
+    rc[g] = s
+
+
+@wp.kernel(enable_backward=False)
+def cholesky_kernel(
+    a: wp.array2d(dtype=wp.float64),
+    first: wp.array(dtype=wp.int32),
+    pivot: wp.float64,
+    offset: int,
+    lower: wp.array2d(dtype=wp.float64),
+):
+    """In one thread, the lower Cholesky factor of the symmetric ``a`` (n, n) inside its envelope (row ``i``'s
+    entries from column ``first[i]`` on; Cholesky-Crout keeps it: no fill outside). A pivot at most ``pivot``
+    (a column dependent on the ones before, to rounding) leaves its column zero."""
+    n = a.shape[0]
+    for i in range(n):
+        fi = first[i]
+        for j in range(fi, i + 1):
+            t = a[i, j]
+            for k in range(wp.max(fi, first[j]), j):
+                t -= lower[i, k] * lower[j, k]
+            if j < i:
+                if lower[j, j] != wp.float64(0.0):
+                    lower[i, j] = t / lower[j, j]
+                else:
+                    lower[i, j] = wp.float64(0.0)
+            elif t > pivot:
+                lower[i, i] = wp.sqrt(t)
+            else:
+                lower[i, i] = wp.float64(0.0)
+
+
+@wp.kernel(enable_backward=False)
+def solve_coarse_kernel(
+    lower: wp.array2d(dtype=float),
+    first: wp.array(dtype=wp.int32),
+    scale: wp.array(dtype=float),
+    rc: wp.array(dtype=wp.spatial_vector),
+    offset: int,
+    work: wp.array(dtype=float),
+    zc: wp.array(dtype=wp.spatial_vector),
+):
+    """In one thread, ``zc = diag(scale) L^-T L^-1 diag(scale) rc`` by forward and back substitution inside the
+    envelope of ``L`` (the unknowns of zero pivots get zero)."""
+    n = lower.shape[0]
+    for i in range(n):
+        t = scale[i] * rc[i // 6][i % 6]
+        for k in range(first[i], i):
+            t -= lower[i, k] * work[k]
+        d = lower[i, i]
+        if d != 0.0:
+            work[i] = t / d
+        else:
+            work[i] = 0.0
+    for ii in range(n):
+        i = n - 1 - ii
+        d = lower[i, i]
+        x = float(0.0)
+        if d != 0.0:
+            x = work[i] / d
+        work[i] = x
+        for k in range(first[i], i):
+            work[k] = work[k] - lower[i, k] * x
+    for g in range(zc.shape[0]):
+        z = wp.spatial_vector()
+        for c in range(6):
+            z[c] = scale[6 * g + c] * work[6 * g + c]
+        zc[g] = z
+
+
+@wp.kernel(enable_backward=False)
+def prolong_cg_kernel(
+    node_aggregate: wp.array(dtype=wp.int32),
+    node_mode: wp.array(dtype=wp.vec3),
+    axes: wp.array(dtype=wp.vec3),
+    r: wp.array(dtype=wp.vec3),
+    zc: wp.array(dtype=wp.spatial_vector),
+    scale: float,
+    row: int,
+    set_p: int,
+    n: int,
+    offset: int,
+    z: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=wp.vec3),
+    partials: wp.array2d(dtype=float),
+):
+    """``z += scale S P zc`` (the coarse correction; with ``set_p`` also ``p = z``); adds ``r . (scale S P zc)``
+    of the block to partial ``row`` (which then holds the two-level ``r.z``)."""
+    blk = wp.tid() + offset
+    span = block_range(blk, partials.shape[1], n)
+    extra = float(0.0)
+    for i in range(span[0], span[1]):
+        g = node_aggregate[i]
+        if g >= 0:
+            c = zc[g]
+            t = wp.vec3(c[0], c[1], c[2])
+            w = wp.vec3(c[3], c[4], c[5])
+            u = scale * wp.cw_mul(axes[i], t + wp.cross(w, node_mode[i]))
+            zi = z[i] + u
+            z[i] = zi
+            if set_p != 0:
+                p[i] = zi
+            extra += wp.dot(r[i], u)
+    partials[row, blk] = partials[row, blk] + extra
+
+
+# -- divergence check ----------------------------------------------------------------------------
+#: rows of the check's partial sums
+CHECK_ROWS = ("kinetic", "elastic", "gravity", "external", "constraint", "contact")
+
+
+@wp.kernel(enable_backward=False)
+def check_step_kernel(
+    x0: wp.array(dtype=wp.vec3),
+    x1: wp.array(dtype=wp.vec3),
+    v1: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    external: wp.array(dtype=wp.vec3),
+    node_force: wp.array(dtype=wp.vec3),
+    moved: wp.array(dtype=wp.vec3),
+    contact_force: wp.array(dtype=wp.vec3),
+    touching: int,
+    gravity: wp.vec3,
+    energy: wp.array(dtype=float),
+    n: int,
+    tet_count: int,
+    offset: int,
+    bad: wp.array(dtype=wp.int32),
+    partials: wp.array2d(dtype=wp.float64),
+):
+    """Per fixed block of nodes (and of tets): the first node whose new position or velocity is not finite
+    (-1: none) and float64 partial sums (rows :data:`CHECK_ROWS`) of the kinetic energy ``m |v|^2 / 2``,
+    the elastic energy, the works ``m g . dx``, ``f_ext . dx``, ``|f . moved|`` (the constraints) and
+    ``|f_c . dx|`` (the tools, with ``touching``), ``dx = x1 - x0``."""
+    blk = wp.tid() + offset
+    span = block_range(blk, partials.shape[1], n)
+    first = int(-1)
+    kinetic = wp.float64(0.0)
+    weight = wp.float64(0.0)
+    push = wp.float64(0.0)
+    constraint = wp.float64(0.0)
+    contact = wp.float64(0.0)
+    for i in range(span[0], span[1]):
+        xi = x1[i]
+        vi = v1[i]
+        if first < 0 and not (wp.isfinite(xi) and wp.isfinite(vi)):
+            first = i
+        dx = xi - x0[i]
+        m = mass[i]
+        kinetic += wp.float64(0.5 * m * wp.dot(vi, vi))
+        weight += wp.float64(m * wp.dot(dx, gravity))
+        push += wp.float64(wp.dot(external[i], dx))
+        constraint += wp.float64(wp.abs(wp.dot(node_force[i], moved[i])))
+        if touching != 0:
+            contact += wp.float64(wp.abs(wp.dot(contact_force[i], dx)))
+    tets = block_range(blk, partials.shape[1], tet_count)
+    elastic = wp.float64(0.0)
+    for t in range(tets[0], tets[1]):
+        elastic += wp.float64(energy[t])
+    bad[blk] = first
+    partials[0, blk] = kinetic
+    partials[1, blk] = elastic
+    partials[2, blk] = weight
+    partials[3, blk] = push
+    partials[4, blk] = constraint
+    partials[5, blk] = contact

@@ -1,0 +1,274 @@
+"""The coarse space of the two-level preconditioner: aggregates of nodes carrying their rigid-body modes.
+
+Block-Jacobi reaches only the high-frequency error of the implicit system
+``A = c_mass M + c_stiff K'``; when stiffness dominates (a stiff beam at
+``dt = 1/60``) the slow error is the bending of the whole body, which CG
+then needs hundreds of iterations to resolve. The coarse space captures
+it: nodes are grouped into aggregates (the cells of a lattice over their
+rest positions, :func:`aggregate`), and each aggregate carries its six
+rigid modes, three translations and three linearized rotations about its
+centroid, as in smoothed aggregation (Vanek, Mandel & Brezina 1996, here
+unsmoothed). A bent body is, aggregate by aggregate, nearly rigid, so its
+low-energy modes lie close to this space. The preconditioner is additive
+(two-level additive Schwarz, Toselli & Widlund 2005, chapter 2):
+
+    z = D^-1 r + P Ac^-1 P^T r,   Ac = P^T A' P,
+
+with ``D`` the block diagonal of the filtered ``A'`` and ``P`` the
+``(3 N, 6 G)`` prolongation (node ``i`` of aggregate ``g`` gets
+``S_i (t_g + w_g x d_i)``), symmetric positive definite for any SPD
+``D`` and any ``P``, so standard PCG applies. Fixed and ground-constrained
+axes are filtered as in ``A'``: the rows of ``P`` take the step's
+``S = diag(axes)``, so the correction never moves a constrained axis.
+
+``Ac`` is assembled by kernels from the per-tet lagged stiffness
+``R K R^T`` and the lumped mass (per-tet blocks written to per-tet slots
+and gathered in a fixed order, so it is the same for any thread count),
+then factored (:func:`factor`): scaled to a unit diagonal (a zero
+diagonal, a mode that moves nothing such as the rotations of a one-node
+aggregate, is left out), shifted by :data:`SHIFT` (modes that nearly move
+nothing, as of a two-node aggregate, stay bounded), Cholesky ``L L^T``
+by a float64 kernel inside the matrix's envelope (aggregates are numbered
+along the longest axis first, so the envelope is about one slab of
+aggregates wide and the factorization costs ``n b^2``, not ``n^3``), and
+applied by forward and back substitution in one thread: ``(L L^T)^-1`` is
+positive definite for any stored ``L``, whatever the rounding. (numpy's LAPACK was tried first: ``eigh`` and ``cholesky`` take 3
+ms and 0.2 ms at 216 unknowns, but with another process on one of the two
+cores OpenBLAS' threads wait for it, and they took 160-640 ms and 76 ms.)
+It is *lagged*: rebuilt with the mode geometry
+(centroids and offsets ``d_i`` at the current positions) every
+:data:`COARSE_EVERY` steps, whenever the system's coefficients, the fixed
+nodes or the state (set by the caller) change, and when more than
+:data:`FILTER_CHANGES` of the nodes changed their free axes (ground
+contacts landing or lifting); in between, the rotations, the positions of
+the modes, a few contacts' filter and the tools' stiffness move on without
+it. A lagged ``Ac`` is still a fixed SPD preconditioner within each solve,
+so CG converges to the same tolerance; only the iteration count drifts.
+Tool contact (``c_contact K_c``) stays out of ``Ac`` and enters the
+block-Jacobi part, as in the one-level preconditioner.
+
+Measured (Warp 1.19, one CPU thread, the 10K-tet beam of
+``benchmarks/bench_fem.py``: 2304 nodes, 36 aggregates, 216 coarse
+unknowns): about 30 CG iterations per step instead of more than 200, 0.27
+ms per iteration instead of 0.23, a rebuild 3 ms (2 of them the per-tet
+coupling, 0.4 the factorization). Aggregates of 16 to 40 nodes (600 to 750
+unknowns) save no iterations on that beam and cost more per iteration; of
+125 nodes (144 unknowns), twice the iterations. At 50K tets (810 unknowns,
+the :data:`MAX_AGGREGATES` cap) the beam takes 38 iterations instead of the
+cap of 200, 80 ms per step instead of 267, a rebuild 25 ms.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from .._parallel import launch
+from . import _kernels as k
+
+__all__ = ["CoarseSpace", "aggregate", "factor"]
+
+#: nodes per aggregate the lattice aims at, and the most aggregates (6 coarse unknowns each, stored dense)
+AGGREGATE_NODES = 64
+MAX_AGGREGATES = 160
+#: steps between rebuilds of the coarse matrix (see the module docstring)
+COARSE_EVERY = 10
+#: the coarse matrix is also rebuilt when this fraction of the aggregated nodes changed their free axes since
+#: (a landing or a release: a stale filter there makes the correction overshoot; a few flickering contacts do not)
+FILTER_CHANGES = 0.02
+#: shift of the unit-diagonal coarse matrix before its Cholesky factorization (its smallest eigenvalue on the
+#: 10K-tet beam is 6e-4: the shift changes the softest coarse mode by 0.2%)
+SHIFT = 1e-6
+#: tets per piece of the coupling launch (a heavy kernel: 16 corner pairs of 6 x 6 blocks per tet)
+COUPLE_GRAIN = 1024
+
+
+def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int) -> tuple[np.ndarray, int, float]:
+    """Group the ``active`` nodes by the cell of a cubic lattice over their rest positions.
+
+    The cell size is set so that about ``active.sum() / nodes`` cells are
+    occupied (at most ``limit``).
+
+    Args:
+        rest: (N, 3) rest positions.
+        active: (N,) bool, the nodes that take part (the others get -1).
+        nodes: nodes per aggregate to aim at.
+        limit: most aggregates.
+
+    Returns:
+        ``(node_aggregate (N,) int32, aggregate_count, cell_size)``; aggregates
+        are numbered in lexicographic order of their cells, the longest axis first.
+    """
+    out = np.full(len(rest), -1, dtype=np.int32)
+    pts = np.asarray(rest, dtype=np.float64)[active]
+    if len(pts) == 0:
+        return out, 0, 1.0
+    lo = pts.min(axis=0)
+    span = pts.max(axis=0) - lo
+    extent = float(span.max()) or 1.0
+    want = int(np.clip(round(len(pts) / nodes), 1, limit))
+    size = float(np.prod(np.maximum(span, 1e-3 * extent)) / want) ** (1.0 / 3.0)
+
+    # the longest axis first: the cells are numbered lexicographically, so consecutive aggregates sweep along
+    # it and the coarse matrix's envelope spans one cross-section of cells
+    axes = np.argsort(-span, kind="stable")
+
+    def cells(h):
+        c = np.floor((pts[:, axes] - lo[axes]) / h).astype(np.int64)
+        width = c.max(axis=0) + 1
+        return np.unique((c[:, 0] * width[1] + c[:, 1]) * width[2] + c[:, 2], return_inverse=True)
+
+    # the occupied cells of a lattice scale about as size^-3: two corrections land near the aim
+    for _ in range(2):
+        occupied = len(cells(size)[0])
+        size *= (occupied / want) ** (1.0 / 3.0)
+    while len(cells(size)[0]) > limit:
+        size *= 1.1
+    _, inverse = cells(size)
+    out[active] = inverse.ravel().astype(np.int32)
+    return out, int(inverse.max()) + 1, size
+
+
+def factor(A: np.ndarray, first: np.ndarray, device) -> tuple[np.ndarray, np.ndarray]:
+    """``(L, s)`` with ``diag(s) (L L^T)^-1 diag(s)`` the (regularized) inverse of the symmetric positive
+    semi-definite ``A`` (n, n) whose row ``i`` is zero left of column ``first[i]``.
+
+    ``s = diag(A)^-1/2`` (0 where the diagonal is not positive: that unknown
+    is left out) and ``L L^T = diag(s) A diag(s) + SHIFT I``, factored inside
+    the envelope by a float64 kernel (no LAPACK: see the module docstring);
+    a column that rounding leaves dependent on the ones before is left out.
+    """
+    n = len(A)
+    d = np.diag(A)
+    s = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 0.0)
+    scaled = s[:, None] * (0.5 * (A + A.T)) * s[None, :]
+    scaled[np.diag_indices_from(scaled)] = np.where(d > 0, 1.0, 0.0) + SHIFT
+    a = wp.array(scaled, dtype=wp.float64, device=device)
+    lower = wp.zeros((n, n), dtype=wp.float64, device=device)
+    wp.launch(k.cholesky_kernel, 1, inputs=[a, wp.array(first, dtype=wp.int32, device=device), wp.float64(0.5 * SHIFT),
+                                            0, lower], device=device)  # fmt: skip
+    # host sync: the factor comes back, to be stored in float32
+    return lower.numpy(), s
+
+
+class CoarseSpace:
+    """The aggregates, their coarse matrix and its Cholesky factor (the correction's launches are the solver's).
+
+    Built by :class:`~warpblob.sim._solver.ImplicitSolver` with the element
+    data (a topology change builds a new one: :meth:`Simulation.rebuild`).
+
+    Args:
+        elements: the :class:`~warpblob.sim._elements.Elements`.
+        axes: (N,) vec3 the free axes of the step's filter (``S``), written by the assembly.
+        threads: CPU threads (None: the default).
+
+    Attributes:
+        aggregate_count: G; ``size`` = 6 G coarse unknowns; ``cell``: the lattice's cell size (the mode
+            offsets ``d_i`` are in its units).
+        node_aggregate: (N,) int32 Warp array, the aggregate of each node (-1: none).
+        node_mode: (N,) vec3 the offsets ``d_i`` of the last :meth:`refresh`.
+        setup_seconds: seconds of the aggregation and slot set-up; ``refresh_seconds`` of the last
+            :meth:`refresh`, ``refreshes`` their count.
+    """
+
+    def __init__(self, elements, axes: wp.array, threads=None):
+        t0 = time.perf_counter()
+        e, dev = elements, elements.device
+        self.elements, self.axes, self.threads = e, axes, threads
+        N, T = e.node_count, e.tet_count
+        mass = e.mass.numpy()
+        node_aggregate, G, self.cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES)
+        self.aggregate_count, self.size = G, 6 * G
+        order = np.argsort(node_aggregate, kind="stable")
+        order = order[node_aggregate[order] >= 0]
+        offsets = np.zeros(G + 1, dtype=np.int32)
+        offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
+        # per tet, one slot per pair of the distinct aggregates of its corners (u of them: u^2 slots, mostly 1),
+        # numbered by the aggregates' order of first appearance among the corners; slots grouped by pair
+        tets = e.tets_host.astype(np.int64)
+        live = e.alive_host & (node_aggregate[tets] >= 0).all(axis=1)
+        corner = node_aggregate[tets].astype(np.int64)
+        rep = np.argmax(corner[:, :, None] == corner[:, None, :], axis=2)  # first corner of the same aggregate
+        new = rep == np.arange(4)
+        group = np.take_along_axis(np.cumsum(new, axis=1) - 1, rep, axis=1)
+        u = np.where(live, new.sum(axis=1), 0)
+        start = np.concatenate([[0], np.cumsum(u * u)])
+        slot = start[:-1, None, None] + group[:, :, None] * u[:, None, None] + group[:, None, :]
+        pair_slot = np.where(live[:, None, None], slot, 0).reshape(T, 16)
+        slot_code = np.zeros(int(start[-1]), dtype=np.int64)
+        slot_code[slot[live].ravel()] = (corner[:, :, None] * G + corner[:, None, :])[live].ravel()
+        pairs, pair_of_slot = np.unique(slot_code, return_inverse=True)
+        pair_of_slot = pair_of_slot.ravel()
+        pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
+        pair_offsets[1:] = np.cumsum(np.bincount(pair_of_slot, minlength=len(pairs)))
+
+        def array(a, dtype=wp.int32):
+            return wp.array(a, dtype=dtype, device=dev)
+
+        self.node_aggregate = array(node_aggregate)
+        self.aggregate_offsets, self.aggregate_nodes = array(offsets), array(order.astype(np.int32))
+        self.pair_slot = array(pair_slot.ravel().astype(np.int32))
+        self.pair_offsets = array(pair_offsets)
+        self.pair_slots = array(np.argsort(pair_of_slot, kind="stable").astype(np.int32))
+        self.pair_aggregates = array(np.stack([pairs // G, pairs % G], axis=1).astype(np.int32), wp.vec2i)
+        self.slots = wp.zeros(len(slot_code), dtype=wp.spatial_matrix, device=dev)
+        self.node_mode = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.reference = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._aggregated = len(order)
+        # (G, G) blocks of 6 x 6: block (g, h) couples the modes of aggregates g and h
+        self.coarse = wp.zeros((G, G), dtype=wp.spatial_matrix, device=dev)
+        # the envelope of the coarse matrix: aggregates are numbered along the longest axis first, so a row of
+        # blocks reaches back only over about one slab of aggregates
+        first_block = np.full(G, G, dtype=np.int64)
+        np.minimum.at(first_block, pairs // G, pairs % G)
+        self.first_host = np.repeat(6 * np.minimum(first_block, np.arange(G)), 6).astype(np.int32)
+        self.first = array(self.first_host)
+        self.lower = wp.zeros((self.size, self.size), dtype=float, device=dev)
+        self.scale = wp.zeros(self.size, dtype=float, device=dev)
+        self.work = wp.zeros(self.size, dtype=float, device=dev)
+        self.rc = wp.zeros(G, dtype=wp.spatial_vector, device=dev)
+        self.zc = wp.zeros(G, dtype=wp.spatial_vector, device=dev)
+        self.refreshes, self.refresh_seconds = 0, 0.0
+        self.setup_seconds = time.perf_counter() - t0
+
+    def drifted(self) -> bool:
+        """Whether more than :data:`FILTER_CHANGES` of the aggregated nodes changed their free axes since the
+        last :meth:`refresh`."""
+        e = self.elements
+        self._changes.zero_()
+        # one launch, not split: the count is an atomic sum, safe only within one CPU launch
+        wp.launch(k.count_changes_kernel, e.node_count, inputs=[self.axes, self.reference, 0, self._changes],
+                  device=e.device)  # fmt: skip
+        # host sync: one integer decides the refresh
+        return int(self._changes.numpy()[0]) > FILTER_CHANGES * self._aggregated
+
+    def matrix(self) -> np.ndarray:
+        """The coarse matrix of the last :meth:`refresh` as a dense (6 G, 6 G) float64 array (aggregate-major)."""
+        G = self.aggregate_count
+        return self.coarse.numpy().astype(np.float64).transpose(0, 2, 1, 3).reshape(6 * G, 6 * G)
+
+    def refresh(self, x: wp.array, rotated: wp.array, c_mass: float, c_stiff: float) -> None:
+        """Rebuild the modes at positions ``x``, the coarse matrix ``P^T A' P`` with the rotations ``rotated``
+        and the step's filter, and its Cholesky factor (:func:`factor`)."""
+        t0 = time.perf_counter()
+        e, dev, th, G = self.elements, self.elements.device, self.threads, self.aggregate_count
+        wp.launch(k.frame_aggregates_kernel, G, inputs=[x, self.aggregate_offsets, self.aggregate_nodes,
+                                                        float(self.cell), 0, self.node_mode], device=dev)  # fmt: skip
+        wp.copy(self.reference, self.axes)
+        self.slots.zero_()
+        launch(k.couple_tets_kernel, e.tet_count,
+               [e.tets, e.volume, e.mu, e.lam, rotated, self.axes, self.node_mode, self.pair_slot, float(c_stiff)],
+               [self.slots], dev, th, min_chunk=COUPLE_GRAIN)  # fmt: skip
+        wp.launch(k.assemble_coarse_kernel, self.pair_aggregates.shape[0],
+                  inputs=[self.pair_offsets, self.pair_slots, self.pair_aggregates, self.slots, self.aggregate_offsets,
+                          self.aggregate_nodes, e.mass, self.axes, self.node_mode, float(c_mass), 0, self.coarse],
+                  device=dev)  # fmt: skip
+        # host sync: the coarse matrix is scaled on the host, then factored by a kernel
+        lower, scale = factor(self.matrix(), self.first_host, dev)
+        self.lower.assign(lower.astype(np.float32))
+        self.scale.assign(scale.astype(np.float32))
+        self.refreshes += 1
+        self.refresh_seconds = time.perf_counter() - t0
