@@ -97,3 +97,29 @@ def test_scalpel_stroke_cuts_as_it_moves(mode):
         assert sum(parts) > 1
     tm = s.to_tetmesh()
     assert tm.volumes().min() > 0 and np.isclose(tm.volume(), 0.04, rtol=1e-5)
+
+
+def test_simulation_scalpel_cuts_while_stepping_and_records(tmp_path):
+    beam = box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (10, 2, 2))
+    s = TetStructure.from_tetmesh(beam)
+    sim = wb.Simulation(s, young=1e6, poisson=0.3, density=1000.0, fixed=beam.nodes[:, 0] == 0.0)
+    blade = wb.tools.Scalpel(0.6, 0.05)
+    path = wb.tools.Path.line((0.52, -0.3, -0.2), (0.52, 0.5, -0.2), 0.2, align=True)
+    cutter = sim.add_tool(blade, path, cut=True)
+    assert sim.cutters == (cutter,)
+    with wb.usd.Recorder(tmp_path / "cut.usdc") as rec:
+        rec.add(sim)
+        for _ in range(40):
+            sim.step()
+            rec.frame()
+    assert cutter.results[-1].components == 2 and sim.stats["cut"]["components"] == 2
+    tip = sim.positions[np.asarray(s.node_rest)[:, 0] > 0.99]
+    assert tip[:, 2].max() < -0.5 * 9.81 * (sim.time - 0.2) ** 2 * 0.8  # the severed end falls freely
+    tet = wb.usd.load_tetmesh(tmp_path / "cut.usdc", time=39)
+    assert tet.tet_count == s.cell_count and tet.volumes().min() > 0
+    with pytest.raises(wb.SimulationError, match="TetStructure"):
+        wb.Simulation(beam, young=1e6, poisson=0.3, density=1000.0).add_tool(blade, path, cut=True)
+    with pytest.raises(wb.ToolError, match="stiffness"):
+        sim.add_tool(blade, path)
+    with pytest.raises(wb.CutError, match="mode"):
+        sim.add_tool(blade, path, cut=True, mode="sometimes")

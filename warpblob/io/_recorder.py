@@ -224,7 +224,7 @@ class Recorder:
             UsdGeom.Xform.Define(self.stage, base)
             self._tracks.append(_VolumeTrack(self.stage, base, item, model))
             if isinstance(item, Simulation):
-                for k, record in enumerate(item.tools):
+                for k, record in enumerate((*item.tools, *item.cutters)):
                     self._tracks.append(_ToolTrack(self.stage, f"{base}/Tool{k}", record.tool, record.path))
             return base
         if isinstance(item, Tool):

@@ -239,6 +239,7 @@ class Simulation:
         self._embedding: Embedding | None = None
         self.model = model
         self._contact: Contact | None = None
+        self._cutters: list = []
         self.stats: dict = {
             "steps": 0,
             "seconds": dict.fromkeys(_STAGES, 0.0),
@@ -517,6 +518,10 @@ class Simulation:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
             raise SimulationError(f"step: n must be a non-negative integer, got {n!r}")
         for _ in range(int(n)):
+            for cutter in self._cutters:
+                result = cutter.step(self, self.time, self.time + self.dt)
+                if result is not None:
+                    self.stats["cut"] = result.summary()
             self._step()
 
     def _step(self) -> None:
@@ -830,9 +835,51 @@ class Simulation:
 
     # -- tools -----------------------------------------------------------------
 
-    def add_tool(self, tool, path, *, stiffness: float, kring: int = 2, contact: str = "field", model=None,
-                 spacing: float | None = None) -> ToolContact:  # fmt: skip
+    def apply_cut(self, result) -> None:
+        """Follow a :func:`warpblob.cut.cut` of this simulation's structure (made with ``collect=False``).
+
+        Rebuilds the element data of the removed and added tets only
+        (:meth:`rebuild`); new nodes take the velocity of the points they were
+        made at, copies of fixed nodes stay fixed. Cut with the structure at
+        the simulation's positions (``structure.set_positions(sim.positions)``).
+
+        Raises:
+            SimulationError: the simulation is not built on a TetStructure, or
+                the cut compacted it (``collect=True``).
+
+        Example:
+            >>> import warpblob as wb
+            >>> s = wb.TetStructure.from_tetmesh(wb.mesh.box_tetmesh((0, 0, 0), (1, 0.2, 0.2), (5, 1, 1)))
+            >>> sim = wb.Simulation(s, young=1e5, poisson=0.3, density=1000.0, fixed=[0, 1, 2, 3])
+            >>> r = wb.cut.cut(s, wb.cut.SweepSurface.plane((0.5, 0.1, 0.1), (1, 0, 0), 1.0), collect=False)
+            >>> sim.apply_cut(r)
+            >>> sim.tet_count == len(s.cell_nodes), r.components
+            (True, 2)
+        """
+        from ..cut._sim import apply_cut
+
+        apply_cut(self, result)
+
+    @property
+    def cutters(self) -> tuple:
+        """The cutting tools (:meth:`add_tool` with ``cut=True``), in the order added."""
+        return tuple(self._cutters)
+
+    def add_tool(self, tool, path, *, stiffness: float | None = None, kring: int = 2, contact: str = "field",
+                 model=None, spacing: float | None = None, cut: bool = False, mode: str = "progressive",
+                 snap: float = 0.2):  # fmt: skip
         """Add a rigid tool on a path: each :meth:`step` moves it to ``path.pose(t + dt)`` and applies its contact.
+
+        With ``cut=True`` a :class:`~warpblob.tools.Scalpel` or
+        :class:`~warpblob.tools.Drill` cuts the volume instead
+        (:class:`~warpblob.cut._sim.Cutter`; the simulation must be built on
+        a :class:`~warpblob.mesh.TetStructure`): ``mode="progressive"`` cuts
+        at the start of every step with the strip the blade sweeps during
+        the step (the tissue opens as the blade goes); ``mode="on_release"``
+        records the stroke and cuts once, at the step in which the path ends
+        (the thesis' cutter). Each cut rebuilds the element data of the
+        changed tets (:meth:`apply_cut`); pieces it severs fall on their own.
+        A cutting tool does not push (give ``stiffness`` as well for contact).
 
         The contact follows the thesis' field-based model, with the field
         carried by the deformation (:mod:`warpblob.sim._contact`: sampling,
@@ -853,10 +900,16 @@ class Simulation:
                 simulation's ``model``); the first one given is kept.
             spacing: tool sampling distance, model units (default: the
                 mesh's median edge length).
+            cut: the tool cuts (see above).
+            mode: "progressive" or "on_release" (cutting tools).
+            snap: the cut's snapping fraction (:func:`warpblob.cut.cut`), in [0, 0.5).
 
         Returns:
             The :class:`~warpblob.sim._contact.ToolContact` record (its index
-            in :attr:`tools` numbers the tool in :meth:`contact_force`).
+            in :attr:`tools` numbers the tool in :meth:`contact_force`), or for
+            a cutting tool without ``stiffness`` its
+            :class:`~warpblob.cut._sim.Cutter` (:attr:`cutters`; its
+            ``results`` are the cuts made).
 
         Raises:
             ToolError: a bad tool, path, stiffness (<= 0), kring, contact or
@@ -878,6 +931,18 @@ class Simulation:
             >>> bool(sim.contact_force(0)[2] > 0)  # the tissue pushes the probe back up
             True
         """
+        if cut:
+            from ..cut._sim import Cutter
+
+            if self._structure is None:
+                raise SimulationError("add_tool(cut=True): cutting edits the mesh; build the simulation on a "
+                                      "TetStructure (wb.TetStructure.from_tetmesh(mesh))")  # fmt: skip
+            cutter = Cutter(tool, path, mode=mode, snap=snap)
+            self._cutters.append(cutter)
+            if stiffness is None:
+                return cutter
+        if stiffness is None:
+            raise ToolError("add_tool: a contact tool needs its stiffness (or cut=True for a cutting tool)")
         if model is not None:
             if self.model is not None and model is not self.model:
                 raise SimulationError("add_tool: the simulation already has a model; tools share the tissue's model")
