@@ -166,7 +166,7 @@ def _compact(flags: wp.array, device, threads) -> np.ndarray:
 
 
 def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, collect: bool = True,
-        device=None, threads: int | None = None) -> CutResult:  # fmt: skip
+        configuration: str = "current", device=None, threads: int | None = None) -> CutResult:  # fmt: skip
     """Cut ``structure`` along ``sweep`` (module docstring); the structure is edited in place.
 
     Args:
@@ -177,6 +177,9 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         collect: run the garbage collection after the edit (indices change; the
             maps are in ``result.remap``). A simulation keeps its indices with
             ``collect=False`` and compacts later.
+        configuration: "current" (the sweep is where the nodes are now) or
+            "rest" (the sweep is given in the rest frame: a cut defined in
+            material coordinates, as a simulation's scalpel accumulates it).
         device: Warp device of the kernels (default: Warp's default).
         threads: CPU threads.
 
@@ -202,6 +205,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     if isinstance(snap, bool) or not isinstance(snap, (int, float, np.floating)) or not 0.0 <= float(snap) < 0.5:
         raise CutError(f"cut: snap must be a number in [0, 0.5), got {snap!r}")
     snap = float(snap)
+    if configuration not in ("current", "rest"):
+        raise CutError(f"cut: configuration must be 'current' or 'rest', got {configuration!r}")
     dev = resolve_device(device)
     result = CutResult(seconds=dict.fromkeys(STAGES, 0.0))
     if sweep.triangle_count == 0:
@@ -216,8 +221,12 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     positions_np = np.asarray(structure.node_position)
     bvh, corners = _bvh(sweep, dev)
     edge_nodes = _shared(edge_nodes_np, wp.vec2i, dev)
-    edge_ok = _shared(np.asarray(structure.edge_alive).view(np.uint8), wp.uint8, dev)
-    positions = _shared(positions_np, wp.vec3, dev)
+    # edges live cells use (a split edge stays alive, unused, until the garbage collection)
+    in_use = np.zeros(E, dtype=np.uint8)
+    in_use[np.asarray(structure.cell_edges)[np.asarray(structure.cell_alive)]] = 1
+    edge_ok = _shared(in_use, wp.uint8, dev)
+    frame = positions_np if configuration == "current" else np.asarray(structure.node_rest)
+    positions = _shared(frame, wp.vec3, dev)
     hit_t = wp.empty(E, dtype=float, device=dev)
     hit_tri = wp.empty(E, dtype=wp.int32, device=dev)
     launch(k.intersect_edges_kernel, E, [edge_nodes, edge_ok, positions, bvh.id, corners], [hit_t, hit_tri], dev,
@@ -233,14 +242,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     rest_np = np.asarray(structure.node_rest, dtype=np.float64)
     cell_nodes_np = np.asarray(structure.cell_nodes)
     cell_edges_np = np.asarray(structure.cell_edges)
-    state = _ParentState(structure, edge_nodes_np)
-    hits, t_hit = hits[~state.drop[hits]], t_hit[~state.drop[hits]]
-    ends = edge_nodes_np[hits]
-    node_cut = np.zeros(N, dtype=np.uint8)
-    node_cut[ends[t_hit < snap, 0]] = 1
-    node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
-    _continue_fronts(structure, sweep, node_cut, hits, edge_nodes_np, positions_np)
-    node_cut[state.protected] = 0
+    all_hits, all_t = hits, t_hit
     arrays = {
         "cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev),
         "cell_edges": _shared(cell_edges_np, vec6i, dev),
@@ -249,58 +251,79 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     code_wp = wp.empty(C, dtype=wp.int32, device=dev)
     changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
     split_t = np.full(E, -1.0)
-    dropped = np.zeros(len(hits), dtype=bool)
-    cell_parent = np.asarray(structure.cell_parent)
+    forced = np.zeros(N, dtype=np.uint8)  # cut nodes the reduction chose (kept when the records change)
+    dissolved = np.zeros(structure._parents.count, dtype=bool)
     rounds = 0
-    while True:
-        keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
-        edge_cut = np.zeros(E, dtype=np.uint8)
-        edge_cut[hits[keep]] = 1
-        split_t[:] = -1.0
-        split_t[hits[keep]] = t_hit[keep]
-        launch(k.cell_codes_kernel, C,
-               [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
-                _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
-               [code_wp, changed_wp], dev, threads)  # fmt: skip
-        cells = _compact(changed_wp, dev, threads)
-        cells = cells[cell_parent[cells] < 0]  # pieces of a progressive parent are cut through their parent
-        units = _units(state, cells, code_wp.numpy()[cells], cell_nodes_np, cell_edges_np, edge_nodes_np, edge_cut,
-                       split_t, node_cut)  # fmt: skip
-        cn = units["corners"]
-        rv = _signed_volumes(rest_np, cn)
-        if np.any(rv <= 0):
-            c0 = int(np.argmax(rv <= 0))
-            raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
-                           f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
-        entry = tables.entry[units["edge_code"], units["node_code"]].astype(np.int64)
-        perm = rank_index(cn) if len(cn) else np.zeros(0, dtype=np.int32)
-        bad = entry < 0
-        bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
-        ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the (checked) parent
-        if ok.any():
-            bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], units["t"][ok], rest_np)
-        if not bad.any():
+    while True:  # records whose corners this cut snaps onto are dissolved: their pieces are cut as cells
+        state = _ParentState(structure, edge_nodes_np, dissolved)
+        sel = ~state.drop[all_hits]
+        hits, t_hit = all_hits[sel], all_t[sel]
+        ends = edge_nodes_np[hits]
+        node_cut = forced.copy()
+        node_cut[ends[t_hit < snap, 0]] = 1
+        node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
+        node_cut[state.protected] = 0
+        if state.dissolve(node_cut, dissolved):
+            continue
+        dropped = np.zeros(len(hits), dtype=bool)
+        cell_parent = state.cell_parent
+        restart = False
+        while True:
+            keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
+            edge_cut = np.zeros(E, dtype=np.uint8)
+            edge_cut[hits[keep]] = 1
+            split_t[:] = -1.0
+            split_t[hits[keep]] = t_hit[keep]
+            launch(k.cell_codes_kernel, C,
+                   [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
+                    _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
+                   [code_wp, changed_wp], dev, threads)  # fmt: skip
+            cells = _compact(changed_wp, dev, threads)
+            cells = cells[cell_parent[cells] < 0]  # pieces of a progressive parent are cut through their parent
+            units = _units(state, cells, code_wp.numpy()[cells], cell_nodes_np, cell_edges_np, edge_nodes_np,
+                           edge_cut, split_t, node_cut)  # fmt: skip
+            cn = units["corners"]
+            rv = _signed_volumes(rest_np, cn)
+            if np.any(rv <= 0):
+                c0 = int(np.argmax(rv <= 0))
+                raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
+                               f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
+            entry = tables.entry[units["edge_code"], units["node_code"]].astype(np.int64)
+            perm = rank_index(cn) if len(cn) else np.zeros(0, dtype=np.int32)
+            bad = entry < 0
+            bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
+            ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the checked parent
+            if ok.any():
+                bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], units["t"][ok], rest_np)
+            if not bad.any():
+                break
+            rounds += 1
+            if rounds > _ROUNDS:
+                raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
+                               f"reductions (first: cell {int(units['cell'][bad][0])}); the structure is "
+                               "unchanged")  # fmt: skip
+            # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not
+            # be cut, drops the hit)
+            cand = units["new_edges"][bad]  # (b, 6) global edges this stroke cuts, -1 else
+            st_ = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
+            dist = np.where(cand >= 0, np.minimum(st_, 1.0 - st_), np.inf)
+            j = np.argmin(dist, axis=1)
+            has = np.isfinite(dist[np.arange(len(j)), j])
+            if not has.any():
+                raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
+                               "structure is unchanged")  # fmt: skip
+            e_sel = cand[np.arange(len(j)), j][has]
+            t_sel = split_t[e_sel]
+            target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
+            blocked = state.is_protected[target]
+            node_cut[target[~blocked]] = 1
+            forced[target[~blocked]] = 1
+            dropped |= np.isin(hits, e_sel[blocked])
+            if state.dissolve(node_cut, dissolved):
+                restart = True
+                break
+        if not restart:
             break
-        rounds += 1
-        if rounds > _ROUNDS:
-            raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
-                           f"reductions (first: cell {int(units['cell'][bad][0])}); the structure is unchanged")  # fmt: skip
-        # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not be
-        # cut, drops the hit)
-        cand = units["new_edges"][bad]  # (b, 6) global edges this stroke cuts, -1 else
-        st_ = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
-        dist = np.where(cand >= 0, np.minimum(st_, 1.0 - st_), np.inf)
-        j = np.argmin(dist, axis=1)
-        has = np.isfinite(dist[np.arange(len(j)), j])
-        if not has.any():
-            raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
-                           "structure is unchanged")  # fmt: skip
-        e_sel = cand[np.arange(len(j)), j][has]
-        t_sel = split_t[e_sel]
-        target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
-        blocked = state.is_protected[target]
-        node_cut[target[~blocked]] = 1
-        dropped |= np.isin(hits, e_sel[blocked])
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
@@ -343,73 +366,6 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     return result
 
 
-def _continue_fronts(structure, sweep, node_cut, hits, edge_nodes, positions) -> None:
-    """Crack-front nodes of earlier strokes that this stroke continues become cut nodes (in place).
-
-    A front node (:data:`~warpblob.mesh._structure.NODE_ORIGINS` "front": a
-    cut node whose star stayed joined, or a progressive tet's face or cell
-    centre) is where an earlier blade stopped. When the new sweep passes
-    within one incident edge length of it and it shares an edge with a node
-    the new sweep cuts, the faces between them are swept by the two strokes
-    together, so it is cut again: the strokes join instead of leaving a band
-    of unswept faces between them.
-    """
-    front = np.flatnonzero((np.asarray(structure.node_origin) == 3) & np.asarray(structure.node_alive))
-    if not front.size or not hits.size:
-        return
-    alive = np.asarray(structure.edge_alive)
-    en = edge_nodes[alive]
-    touched = node_cut.astype(bool)
-    touched[edge_nodes[hits].ravel()] = True
-    # fronts that share an edge with a node this stroke touches
-    is_front = np.zeros(len(node_cut), dtype=bool)
-    is_front[front] = True
-    pair = (is_front[en[:, 0]] & touched[en[:, 1]]) | (is_front[en[:, 1]] & touched[en[:, 0]])
-    if not pair.any():
-        return
-    en = en[pair]
-    cand_of_edge = np.where(is_front[en[:, 0]], en[:, 0], en[:, 1])
-    reach = np.zeros(len(node_cut))
-    np.maximum.at(reach, cand_of_edge, np.linalg.norm(positions[en[:, 0]] - positions[en[:, 1]], axis=1))
-    cand = np.unique(cand_of_edge)
-    reach = reach[cand]
-    near = _distance_to(sweep.triangles, positions[cand].astype(np.float64)) <= reach
-    node_cut[cand[near]] = 1
-
-
-def _distance_to(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """(P,) distance from each point to the nearest of (M, 3, 3) triangles (Ericson 2005, 5.1.5), in chunks."""
-    out = np.full(len(points), np.inf)
-    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
-    for start in range(0, len(points), 256):
-        p = points[start : start + 256, None, :]
-        ab, ac, ap = b - a, c - a, p - a
-        d1, d2 = np.einsum("mj,pmj->pm", ab, ap), np.einsum("mj,pmj->pm", ac, ap)
-        bp, cp = p - b, p - c
-        d3, d4 = np.einsum("mj,pmj->pm", ab, bp), np.einsum("mj,pmj->pm", ac, bp)
-        d5, d6 = np.einsum("mj,pmj->pm", ab, cp), np.einsum("mj,pmj->pm", ac, cp)
-        va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-        with np.errstate(divide="ignore", invalid="ignore"):
-            denom = 1.0 / (va + vb + vc)
-            v, w = vb * denom, vc * denom
-            q = a + v[..., None] * ab + w[..., None] * ac  # interior projection
-            # vertex and edge regions
-            t_ab = np.clip(d1 / (d1 - d3), 0, 1)
-            t_ac = np.clip(d2 / (d2 - d6), 0, 1)
-            t_bc = np.clip((d4 - d3) / ((d4 - d3) + (d5 - d6)), 0, 1)
-        cands = [
-            q,
-            a + np.nan_to_num(t_ab)[..., None] * ab,
-            a + np.nan_to_num(t_ac)[..., None] * ac,
-            b + np.nan_to_num(t_bc)[..., None] * (c - b),
-        ]
-        inside = (va >= 0) & (vb >= 0) & (vc >= 0) & np.isfinite(denom)
-        dist = [np.where(inside, np.linalg.norm(p - cands[0], axis=2), np.inf)]
-        dist += [np.linalg.norm(p - x, axis=2) for x in cands[1:]]
-        out[start : start + 256] = np.min(np.minimum.reduce(dist), axis=1)
-    return out
-
-
 def _positive(tables, entry, perm, cn, t_local, rest) -> np.ndarray:
     """Whether every sub-tet of each cut tet is positive at the actual split points (rest positions).
 
@@ -450,7 +406,7 @@ class _ParentState:
     of the same cut made in one.
     """
 
-    def __init__(self, structure, edge_nodes: np.ndarray):
+    def __init__(self, structure, edge_nodes: np.ndarray, dissolved: np.ndarray | None = None):
         self.structure = structure
         pr = structure._parents
         N, E = len(structure.node_rest), len(edge_nodes)
@@ -459,9 +415,17 @@ class _ParentState:
         self.protected = np.zeros(0, dtype=np.int64)
         self.edges = np.full((pr.count, 6), -1, dtype=np.int64)
         alive = np.asarray(structure.cell_alive)
-        cp = np.asarray(structure.cell_parent)
-        self.children = np.flatnonzero(alive & (cp >= 0))
-        self.active = np.unique(cp[self.children])
+        cp = np.asarray(structure.cell_parent).astype(np.int64)
+        live = pr["alive"].copy()
+        if dissolved is not None:
+            live &= ~dissolved[: pr.count]
+        # a piece of an ended or dissolved record is an ordinary cell
+        self.cell_parent = np.full(len(cp), -1, dtype=np.int64)
+        if pr.count:
+            self.cell_parent = np.where((cp >= 0) & live[np.maximum(cp, 0)], cp, -1)
+        self.dissolved = np.flatnonzero(pr["alive"] & ~live)
+        self.children = np.flatnonzero(alive & (self.cell_parent >= 0))
+        self.active = np.unique(self.cell_parent[self.children])
         if self.children.size:
             self.drop[np.asarray(structure.cell_edges)[self.children].ravel()] = True
             corners = pr["corners"][self.active]
@@ -469,17 +433,33 @@ class _ParentState:
             ge = np.where(pr["split"][self.active][:, :, 0] >= 0, -1, ge).astype(np.int64)
             self.drop[ge[ge >= 0]] = False
             self.edges[self.active] = ge
-            self.protected = np.unique(np.asarray(structure.cell_nodes)[self.children])
-            self.is_protected[self.protected] = True
+            # their inner nodes (split copies, front points) may not be snapped onto; their corners may, and
+            # then the record is dissolved (:meth:`dissolve`)
+            inner = np.setdiff1d(np.asarray(structure.cell_nodes)[self.children], corners)
+            self.protected = inner
+            self.is_protected[inner] = True
+
         # crack-front points on faces, by the face's corner triple: shared with the tet across the face
         live = np.flatnonzero(pr["alive"])
         fronts = pr["faces"][live]  # (P, 4)
         tri = pr["corners"][live][:, TET_FACES]  # (P, 4, 3)
         has = fronts >= 0
+        self.key_base = N  # face keys of existing nodes
         self.front_keys = _triple_keys(tri[has], N)
         self.front_ids = fronts[has].astype(np.int64)
         order = np.argsort(self.front_keys)
         self.front_keys, self.front_ids = self.front_keys[order], self.front_ids[order]
+
+    def dissolve(self, node_cut: np.ndarray, dissolved: np.ndarray) -> bool:
+        """Mark the records with a corner in ``node_cut`` dissolved (in place); whether any was."""
+        if not self.active.size:
+            return False
+        corners = self.structure._parents["corners"][self.active]
+        hit = (node_cut[corners] != 0).any(axis=1)
+        if not hit.any():
+            return False
+        dissolved[self.active[hit]] = True
+        return True
 
     def front_of(self, keys: np.ndarray) -> np.ndarray:
         """Existing crack-front node of each face key, -1 where none."""
@@ -679,7 +659,7 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     }  # fmt: skip
     # what goes: replaced cells, and every live piece of a parent split again
     parents_split = units["parent"][is_parent]
-    cp = np.asarray(structure.cell_parent)
+    cp = state.cell_parent
     children = state.children[np.isin(cp[state.children], parents_split)]
     remove = np.concatenate([units["cell"][replace & ~is_parent], children]).astype(np.int64)
     material_of = np.asarray(structure.cell_material)
@@ -699,7 +679,7 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
         "parent": np.repeat(record[replace], counts),
         "records": records,
         "new_record_ids": new_ids,
-        "ended": parents_split[~progressive[is_parent]],
+        "ended": np.concatenate([parents_split[~progressive[is_parent]], state.dissolved]).astype(np.int64),
         "split": (int((counts > 1).sum()), int(counts[counts > 1].sum())),
         "sources": np.concatenate(new.sources).astype(np.int32) if new.sources else np.zeros((0, 2), np.int32),
         "weights": np.concatenate(new.weights).astype(np.float32) if new.weights else np.zeros(0, np.float32),

@@ -7,6 +7,7 @@ import warp as wp
 from ..mesh._structure import vec6i
 
 __all__ = [
+    "to_rest_kernel",
     "cell_codes_kernel",
     "flag_positive_kernel",
     "intersect_edges_kernel",
@@ -110,3 +111,31 @@ def cell_codes_kernel(
                 value = value | (1 << (6 + k))
     code[c] = value
     changed[c] = wp.where(value != 0, 1, 0)
+
+
+@wp.kernel(enable_backward=False)
+def to_rest_kernel(
+    grid: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    positions: wp.array(dtype=wp.vec3),
+    rest: wp.array(dtype=wp.vec3),
+    radius: float,
+    offset: int,
+    out: wp.array(dtype=wp.vec3),
+):
+    """A world point carried back to the rest frame by its nearest node's displacement (itself if none is near)."""
+    i = wp.tid() + offset
+    p = points[i]
+    best = float(radius * radius)
+    node = int(-1)
+    query = wp.hash_grid_query(grid, p, radius)
+    j = int(0)
+    while wp.hash_grid_query_next(query, j):
+        d = wp.length_sq(positions[j] - p)
+        if d < best:
+            best = d
+            node = j
+    if node >= 0:
+        out[i] = p - (positions[node] - rest[node])
+    else:
+        out[i] = p

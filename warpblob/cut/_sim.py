@@ -11,9 +11,13 @@ separated share no node any more, so they are independent bodies of the
 same system: a piece with no fixed node falls under gravity.
 
 :class:`Cutter` drives a scalpel or drill along its path inside
-:meth:`warpblob.Simulation.step`: ``mode="progressive"`` cuts every step
-with the strip the blade swept during it; ``mode="on_release"`` records the
-stroke and cuts once when the path ends (the thesis' non-progressive cutter).
+:meth:`warpblob.Simulation.step`. The stroke is recorded in the rest frame
+(each step's strip carried back by the local displacement, so the tissue may
+move under the blade): ``mode="progressive"`` cuts every step with the whole
+stroke so far (edges already cut are gone and the old part only snaps onto
+its own split points, so each step adds what the blade newly swept, and the
+result is that of one stroke); ``mode="on_release"`` cuts once when the path
+ends (the thesis' non-progressive cutter).
 """
 
 from __future__ import annotations
@@ -48,22 +52,22 @@ def apply_cut(sim, result: CutResult) -> None:
     if not result.tets_removed and not result.tets_added:
         return
     old_n = sim.node_count
-    v_old = sim.velocities
-    fixed_old = np.zeros(old_n, dtype=bool)
-    fixed_old[sim.fixed] = True
-    sim.rebuild(np.concatenate([result.removed, result.added]).astype(np.int64))
     new = result.new_nodes.astype(np.int64)
+    if new.size and new.min() < old_n:
+        raise SimulationError("apply_cut: the result's new nodes are older than the simulation (applied twice?)")
+    grow = len(structure.node_rest) - old_n
+    v_new = np.zeros((grow, 3))
+    fixed_new = np.zeros(grow, dtype=bool)
     if new.size:
-        if new.min() < old_n:
-            raise SimulationError("apply_cut: the result's new nodes are older than the simulation (applied twice?)")
+        v_old = sim.velocities
+        fixed_old = np.zeros(old_n, dtype=bool)
+        fixed_old[sim.fixed] = True
         a, b = result.node_sources[:, 0].astype(np.int64), result.node_sources[:, 1].astype(np.int64)
         w = result.node_weights.astype(np.float64)[:, None]
-        v = sim.velocities
-        v[new] = (1.0 - w) * v_old[a] + w * v_old[b]
-        sim.velocities = v
-        copies = (a == b) & fixed_old[a]
-        if copies.any():
-            sim.fixed = np.concatenate([sim.fixed, new[copies]])
+        v_new[new - old_n] = (1.0 - w) * v_old[a] + w * v_old[b]
+        fixed_new[new - old_n] = (a == b) & fixed_old[a]  # a copy of a fixed node stays fixed
+    sim.rebuild(np.concatenate([result.removed, result.added]).astype(np.int64), new_velocities=v_new,
+                new_fixed=fixed_new)  # fmt: skip
     sim.stats["components"] = result.components
 
 
@@ -89,31 +93,62 @@ class Cutter:
         self.tool, self.path, self.mode, self.snap, self.samples = tool, path, mode, float(snap), int(samples)
         self.results: list[CutResult] = []
         self._done = False
+        self._triangles: list[np.ndarray] = []  # the stroke so far, in the rest frame
 
     def step(self, sim, t0: float, t1: float) -> CutResult | None:
-        """Cut for the blade's motion from ``t0`` to ``t1`` (seconds); the result, or None when nothing was cut."""
+        """Cut for the blade's motion from ``t0`` to ``t1`` (seconds); the result, or None when nothing was cut.
+
+        The strip swept in ``[t0, t1]`` is carried back to the rest frame by
+        the displacement of the nearest node (so the tissue may move while
+        it is cut) and added to the stroke's rest-frame sweep; progressive
+        mode cuts with the whole stroke so far each step, in the rest frame:
+        edges already cut are gone and the old part only snaps onto its own
+        split points, so each step adds what the blade newly swept, with the
+        snapping and partly cut tets of one stroke.
+        """
         if self._done or t1 <= self.path.t0:
             return None
         structure = sim._structure
-        if self.mode == "on_release":
-            if t1 < self.path.t1:
-                return None
-            a, b = self.path.t0, self.path.t1
+        a, b = max(t0, self.path.t0), min(t1, self.path.t1)
+        if b > a:
+            x = np.asarray(sim.positions, dtype=np.float64)
+            box = np.stack([x.min(axis=0), x.max(axis=0)])
+            strip = SweepSurface.from_path(self.tool, self.path, a, b, (t1 - t0) / self.samples, bounds=box)
+            if strip.triangle_count:
+                self._triangles.append(_to_rest(strip.triangles, structure, sim))
+        if t1 >= self.path.t1:
             self._done = True
-            dt = min(sim.dt, (b - a) / 2)
-        else:
-            a, b = max(t0, self.path.t0), min(t1, self.path.t1)
-            if b <= a:
-                self._done = t0 >= self.path.t1
-                return None
-            dt = (b - a) / self.samples
-        lo = np.asarray(structure.node_position).min(axis=0)
-        hi = np.asarray(structure.node_position).max(axis=0)
-        sweep = SweepSurface.from_path(self.tool, self.path, a, b, dt, bounds=np.stack([lo, hi]))
-        if sweep.triangle_count == 0:
+        elif self.mode == "on_release":
             return None
+        if not self._triangles:
+            return None
+        sweep = SweepSurface(np.concatenate(self._triangles))
         structure.set_positions(sim.positions)
-        result = cut(structure, sweep, snap=self.snap, collect=False, device=sim.device, threads=sim.threads)
+        result = cut(structure, sweep, snap=self.snap, collect=False, configuration="rest", device=sim.device,
+                     threads=sim.threads)  # fmt: skip
         apply_cut(sim, result)
         self.results.append(result)
         return result
+
+
+def _to_rest(triangles: np.ndarray, structure, sim) -> np.ndarray:
+    """(M, 3, 3) world triangles carried to the rest frame by the nearest node's displacement (a hash grid)."""
+    import warp as wp
+
+    from .._parallel import launch
+    from . import _kernels as k
+
+    dev = sim.device
+    x = np.asarray(sim.positions, dtype=np.float32)
+    rest = np.asarray(structure.node_rest, dtype=np.float32)
+    en = np.asarray(structure.edge_nodes)[np.asarray(structure.edge_alive)]
+    edge = float(np.median(np.linalg.norm(rest[en[:, 0]] - rest[en[:, 1]], axis=1))) if len(en) else 1.0
+    radius = 2.0 * edge
+    pos = wp.array(x, dtype=wp.vec3, device=dev)
+    grid = wp.HashGrid(64, 64, 64, device=dev)
+    grid.build(pos, radius)
+    pts = wp.array(triangles.reshape(-1, 3).astype(np.float32), dtype=wp.vec3, device=dev)
+    out = wp.empty_like(pts)
+    launch(k.to_rest_kernel, pts.shape[0], [grid.id, pts, pos, wp.array(rest, dtype=wp.vec3, device=dev), radius],
+           [out], dev, sim.threads)  # fmt: skip
+    return out.numpy().astype(np.float64).reshape(-1, 3, 3)

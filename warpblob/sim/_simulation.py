@@ -746,7 +746,7 @@ class Simulation:
 
     # -- topology changes ------------------------------------------------------
 
-    def rebuild(self, tet_ids=None, **changes) -> None:
+    def rebuild(self, tet_ids=None, *, new_velocities=None, new_fixed=None, **changes) -> None:
         """Rebuild element data after a topology change: the call the cutting code makes after each edit.
 
         ``tet_ids`` and ``changes`` (``tets``, ``alive``, ``rest``, ``young``,
@@ -756,7 +756,9 @@ class Simulation:
         changed slots (default: all) are re-read from the structure: cell
         nodes, live flags, the materials' values by material id, node rest
         positions. Nodes added since start at the structure's current
-        position (a TetMesh's: at rest) with zero velocity, free; positions,
+        position (a TetMesh's: at rest) with velocity ``new_velocities``
+        ((K, 3) for the K added nodes, default zero) and fixed where
+        ``new_fixed`` ((K,) bool) says (default free); positions,
         velocities and fixed flags of the others stay. The solver is rebuilt
         with the element data, the two-level preconditioner's aggregates and
         coarse matrix included (their set-up is in :attr:`stats`).
@@ -791,10 +793,15 @@ class Simulation:
         if self._structure is not None:
             added = np.asarray(self._structure.node_position, dtype=np.float32)[old_n : e.node_count]
         pad = lambda a, fill: np.concatenate([a, fill])  # noqa: E731
-        self._allocate(pad(x, added).astype(np.float64), pad(v, np.zeros((grow, 3), np.float32)).astype(np.float64))
+        vnew = np.zeros((grow, 3)) if new_velocities is None else np.asarray(new_velocities, np.float64)
+        fnew = np.zeros(grow, dtype=bool) if new_fixed is None else np.asarray(new_fixed, dtype=bool)
+        if vnew.shape != (grow, 3) or fnew.shape != (grow,):
+            raise SimulationError(f"rebuild: {grow} nodes were added; new_velocities must be ({grow}, 3) and "
+                                  f"new_fixed ({grow},), got {vnew.shape} and {fnew.shape}")  # fmt: skip
+        self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64))
         self._target.assign(pad(target, added))
         self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))
-        self._fixed_mask = pad(mask, np.zeros(grow, dtype=bool))
+        self._fixed_mask = pad(mask, fnew)
         self._update_flags()
         self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count
         if self._embedding is not None:
