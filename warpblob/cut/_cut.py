@@ -63,6 +63,7 @@ from .._errors import CutError
 from .._parallel import launch
 from .._stages import compact
 from ..mesh._structure import NODE_ORIGINS, TetStructure, _connected, vec6i
+from ..sim._elements import DEGENERATE_VOLUME
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
 from ._sweep import SweepSurface
@@ -166,7 +167,8 @@ def _compact(flags: wp.array, device, threads) -> np.ndarray:
 
 
 def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, collect: bool = True,
-        configuration: str = "current", device=None, threads: int | None = None) -> CutResult:  # fmt: skip
+        configuration: str = "current", node_limit: int | None = None, device=None,
+        threads: int | None = None) -> CutResult:  # fmt: skip
     """Cut ``structure`` along ``sweep`` (module docstring); the structure is edited in place.
 
     Args:
@@ -180,6 +182,10 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         configuration: "current" (the sweep is where the nodes are now) or
             "rest" (the sweep is given in the rest frame: a cut defined in
             material coordinates, as a simulation's scalpel accumulates it).
+        node_limit: intersect only edges between nodes below this index: a
+            stroke re-applied whole (a simulation's progressive scalpel) then
+            meets only the edges that were there when it began, not those its
+            earlier steps made, and gives the cells of one stroke.
         device: Warp device of the kernels (default: Warp's default).
         threads: CPU threads.
 
@@ -224,6 +230,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     # edges live cells use (a split edge stays alive, unused, until the garbage collection)
     in_use = np.zeros(E, dtype=np.uint8)
     in_use[np.asarray(structure.cell_edges)[np.asarray(structure.cell_alive)]] = 1
+    if node_limit is not None:
+        in_use[np.asarray(structure.edge_nodes).max(axis=1) >= int(node_limit)] = 0
     edge_ok = _shared(in_use, wp.uint8, dev)
     frame = positions_np if configuration == "current" else np.asarray(structure.node_rest)
     positions = _shared(frame, wp.vec3, dev)
@@ -255,7 +263,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     dissolved = np.zeros(structure._parents.count, dtype=bool)
     rounds = 0
     while True:  # records whose corners this cut snaps onto are dissolved: their pieces are cut as cells
-        state = _ParentState(structure, edge_nodes_np, dissolved)
+        state = _ParentState(structure, edge_nodes_np, dissolved, keep_corners=node_limit is not None)
         sel = ~state.drop[all_hits]
         hits, t_hit = all_hits[sel], all_t[sel]
         ends = edge_nodes_np[hits]
@@ -388,11 +396,12 @@ def _positive(tables, entry, perm, cn, t_local, rest) -> np.ndarray:
     r = np.maximum(refs, 0)
     rows = np.arange(n)[:, None]
     a, b, c, d = (pts[rows, r[..., i]] for i in range(4))
-    vol = np.einsum("nsj,nsj->ns", np.cross(b - a, c - a), d - a)
-    parent = np.einsum("nj,nj->n", np.cross(corner[:, 1] - corner[:, 0], corner[:, 2] - corner[:, 0]),
-                       corner[:, 3] - corner[:, 0])  # fmt: skip
-    # a sub-tet thinner than 1e-6 of its parent counts as flat (float32 storage would invert it)
-    return np.all(~valid | (vol > 1e-6 * parent[:, None]), axis=1)
+    vol = np.einsum("nsj,nsj->ns", np.cross(b - a, c - a), d - a) / 6.0
+    longest = np.sqrt(np.max([((x - y) ** 2).sum(axis=2) for x, y in
+                              ((a, b), (a, c), (a, d), (b, c), (b, d), (c, d))], axis=0))  # fmt: skip
+    # flat: at most ten times the simulator's degenerate volume (so every tet a cut makes can be simulated;
+    # float32 storage would invert a flatter one)
+    return np.all(~valid | (vol > 10.0 * DEGENERATE_VOLUME * longest**3), axis=1)
 
 
 class _ParentState:
@@ -406,7 +415,8 @@ class _ParentState:
     of the same cut made in one.
     """
 
-    def __init__(self, structure, edge_nodes: np.ndarray, dissolved: np.ndarray | None = None):
+    def __init__(self, structure, edge_nodes: np.ndarray, dissolved: np.ndarray | None = None,
+                 keep_corners: bool = False):  # fmt: skip
         self.structure = structure
         pr = structure._parents
         N, E = len(structure.node_rest), len(edge_nodes)
@@ -435,7 +445,9 @@ class _ParentState:
             self.edges[self.active] = ge
             # their inner nodes (split copies, front points) may not be snapped onto; their corners may, and
             # then the record is dissolved (:meth:`dissolve`)
-            inner = np.setdiff1d(np.asarray(structure.cell_nodes)[self.children], corners)
+            inner = np.unique(np.asarray(structure.cell_nodes)[self.children])
+            if not keep_corners:
+                inner = np.setdiff1d(inner, corners)
             self.protected = inner
             self.is_protected[inner] = True
 

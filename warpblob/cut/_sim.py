@@ -94,6 +94,7 @@ class Cutter:
         self.results: list[CutResult] = []
         self._done = False
         self._triangles: list[np.ndarray] = []  # the stroke so far, in the rest frame
+        self._node_limit: int | None = None  # nodes before the stroke: only their edges are cut
 
     def step(self, sim, t0: float, t1: float) -> CutResult | None:
         """Cut for the blade's motion from ``t0`` to ``t1`` (seconds); the result, or None when nothing was cut.
@@ -124,8 +125,10 @@ class Cutter:
             return None
         sweep = SweepSurface(np.concatenate(self._triangles))
         structure.set_positions(sim.positions)
-        result = cut(structure, sweep, snap=self.snap, collect=False, configuration="rest", device=sim.device,
-                     threads=sim.threads)  # fmt: skip
+        if self._node_limit is None:
+            self._node_limit = len(structure.node_rest)
+        result = cut(structure, sweep, snap=self.snap, collect=False, configuration="rest",
+                     node_limit=self._node_limit, device=sim.device, threads=sim.threads)  # fmt: skip
         apply_cut(sim, result)
         self.results.append(result)
         return result
