@@ -13,11 +13,13 @@ same system: a piece with no fixed node falls under gravity.
 :class:`Cutter` drives a scalpel or drill along its path inside
 :meth:`warpblob.Simulation.step`. The stroke is recorded in the rest frame
 (each step's strip carried back by the local displacement, so the tissue may
-move under the blade): ``mode="progressive"`` cuts every step with the whole
-stroke so far (edges already cut are gone and the old part only snaps onto
-its own split points, so each step adds what the blade newly swept, and the
-result is that of one stroke); ``mode="on_release"`` cuts once when the path
-ends (the thesis' non-progressive cutter).
+move under the blade): ``mode="on_release"`` (the default, the thesis'
+non-progressive cutter) cuts once when the path ends; ``mode="progressive"``
+cuts every step with the whole stroke so far, meeting only the edges the
+mesh had when the stroke began, with the tets earlier steps left partly cut
+continued through their records. It is not yet reliable: a step that snaps
+onto a corner of such a tet has that snap refused, and the cut there is
+dropped (docs/cut.md gives the measured effect).
 """
 
 from __future__ import annotations
@@ -77,7 +79,8 @@ class Cutter:
     Args:
         tool: a :class:`~warpblob.tools.Scalpel` or :class:`~warpblob.tools.Drill`.
         path: its :class:`~warpblob.tools.Path`.
-        mode: "progressive" (cut every step) or "on_release" (cut once at the path's end).
+        mode: "on_release" (cut once at the path's end) or "progressive" (cut every step; see
+            :meth:`warpblob.Simulation.add_tool` for its limits).
         snap: the cut's snapping fraction (:func:`~warpblob.cut.cut`).
         samples: blade samples per step for the swept strip (>= 1).
 
@@ -85,7 +88,7 @@ class Cutter:
         results: every :class:`~warpblob.cut.CutResult`, in order.
     """
 
-    def __init__(self, tool, path, *, mode: str = "progressive", snap: float = 0.2, samples: int = 2):
+    def __init__(self, tool, path, *, mode: str = "on_release", snap: float = 0.2, samples: int = 2):
         if mode not in CUT_MODES:
             raise CutError(f"cut mode must be one of {', '.join(CUT_MODES)}, got {mode!r}")
         if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
@@ -101,11 +104,9 @@ class Cutter:
 
         The strip swept in ``[t0, t1]`` is carried back to the rest frame by
         the displacement of the nearest node (so the tissue may move while
-        it is cut) and added to the stroke's rest-frame sweep; progressive
-        mode cuts with the whole stroke so far each step, in the rest frame:
-        edges already cut are gone and the old part only snaps onto its own
-        split points, so each step adds what the blade newly swept, with the
-        snapping and partly cut tets of one stroke.
+        it is cut) and added to the stroke's rest-frame sweep, which is cut
+        (in the rest frame) at the path's end, or every step in progressive
+        mode.
         """
         if self._done or t1 <= self.path.t0:
             return None

@@ -873,18 +873,20 @@ class Simulation:
         return tuple(self._cutters)
 
     def add_tool(self, tool, path, *, stiffness: float | None = None, kring: int = 2, contact: str = "field",
-                 model=None, spacing: float | None = None, cut: bool = False, mode: str = "progressive",
+                 model=None, spacing: float | None = None, cut: bool = False, mode: str = "on_release",
                  snap: float = 0.2):  # fmt: skip
         """Add a rigid tool on a path: each :meth:`step` moves it to ``path.pose(t + dt)`` and applies its contact.
 
         With ``cut=True`` a :class:`~warpblob.tools.Scalpel` or
         :class:`~warpblob.tools.Drill` cuts the volume instead
         (:class:`~warpblob.cut._sim.Cutter`; the simulation must be built on
-        a :class:`~warpblob.mesh.TetStructure`): ``mode="progressive"`` cuts
-        at the start of every step with the strip the blade sweeps during
-        the step (the tissue opens as the blade goes); ``mode="on_release"``
-        records the stroke and cuts once, at the step in which the path ends
-        (the thesis' cutter). Each cut rebuilds the element data of the
+        a :class:`~warpblob.mesh.TetStructure`): ``mode="on_release"`` (the
+        default, the thesis' cutter) records the stroke and cuts once, at the
+        step in which the path ends; ``mode="progressive"`` cuts every step
+        with the stroke so far (the tissue opens as the blade goes), which is
+        not yet reliable: where a step's blade snaps onto a corner of a tet an
+        earlier step left partly cut, that cut is dropped, and a stroke that
+        separates the body in one go may leave it joined (docs/cut.md). Each cut rebuilds the element data of the
         changed tets (:meth:`apply_cut`); pieces it severs fall on their own.
         A cutting tool does not push (give ``stiffness`` as well for contact).
 
