@@ -260,78 +260,77 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
     split_t = np.full(E, -1.0)
     forced = np.zeros(N, dtype=np.uint8)  # cut nodes the reduction chose (kept when the records change)
-    dissolved = np.zeros(structure._parents.count, dtype=bool)
     rounds = 0
-    while True:  # records whose corners this cut snaps onto are dissolved: their pieces are cut as cells
-        state = _ParentState(structure, edge_nodes_np, dissolved, keep_corners=node_limit is not None)
-        sel = ~state.drop[all_hits]
-        hits, t_hit = all_hits[sel], all_t[sel]
-        ends = edge_nodes_np[hits]
-        node_cut = forced.copy()
-        node_cut[ends[t_hit < snap, 0]] = 1
-        node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
-        node_cut[state.protected] = 0
-        if state.dissolve(node_cut, dissolved):
-            continue
-        dropped = np.zeros(len(hits), dtype=bool)
-        cell_parent = state.cell_parent
-        restart = False
-        while True:
-            keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
-            edge_cut = np.zeros(E, dtype=np.uint8)
-            edge_cut[hits[keep]] = 1
-            split_t[:] = -1.0
-            split_t[hits[keep]] = t_hit[keep]
-            launch(k.cell_codes_kernel, C,
-                   [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
-                    _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
-                   [code_wp, changed_wp], dev, threads)  # fmt: skip
-            cells = _compact(changed_wp, dev, threads)
-            cells = cells[cell_parent[cells] < 0]  # pieces of a progressive parent are cut through their parent
-            units = _units(state, cells, code_wp.numpy()[cells], cell_nodes_np, cell_edges_np, edge_nodes_np,
-                           edge_cut, split_t, node_cut)  # fmt: skip
-            cn = units["corners"]
-            rv = _signed_volumes(rest_np, cn)
-            if np.any(rv <= 0):
-                c0 = int(np.argmax(rv <= 0))
-                raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
-                               f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
-            entry = tables.entry[units["edge_code"], units["node_code"]].astype(np.int64)
-            perm = rank_index(cn) if len(cn) else np.zeros(0, dtype=np.int32)
-            bad = entry < 0
-            bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
-            ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the checked parent
-            if ok.any():
-                bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], units["t"][ok], rest_np)
-            if not bad.any():
-                break
-            rounds += 1
-            if rounds > _ROUNDS:
-                raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
-                               f"reductions (first: cell {int(units['cell'][bad][0])}); the structure is "
-                               "unchanged")  # fmt: skip
-            # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not
-            # be cut, drops the hit)
-            cand = units["new_edges"][bad]  # (b, 6) global edges this stroke cuts, -1 else
-            st_ = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
-            dist = np.where(cand >= 0, np.minimum(st_, 1.0 - st_), np.inf)
-            j = np.argmin(dist, axis=1)
-            has = np.isfinite(dist[np.arange(len(j)), j])
-            if not has.any():
-                raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
-                               "structure is unchanged")  # fmt: skip
-            e_sel = cand[np.arange(len(j)), j][has]
-            t_sel = split_t[e_sel]
-            target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
-            blocked = state.is_protected[target]
-            node_cut[target[~blocked]] = 1
-            forced[target[~blocked]] = 1
-            dropped |= np.isin(hits, e_sel[blocked])
-            if state.dissolve(node_cut, dissolved):
-                restart = True
-                break
-        if not restart:
+    state = _ParentState(structure, edge_nodes_np)
+    sel = ~state.drop[all_hits]
+    hits, t_hit = all_hits[sel], all_t[sel]
+    ends = edge_nodes_np[hits]
+    node_cut = forced.copy()
+    node_cut[ends[t_hit < snap, 0]] = 1
+    node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
+    node_cut[state.protected] = 0
+    dropped = np.zeros(len(hits), dtype=bool)
+    cell_parent = state.cell_parent
+    while True:
+        keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
+        edge_cut = np.zeros(E, dtype=np.uint8)
+        edge_cut[hits[keep]] = 1
+        split_t[:] = -1.0
+        split_t[hits[keep]] = t_hit[keep]
+        launch(k.cell_codes_kernel, C,
+               [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
+                _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
+               [code_wp, changed_wp], dev, threads)  # fmt: skip
+        cells = _compact(changed_wp, dev, threads)
+        cells = cells[cell_parent[cells] < 0]  # pieces of a progressive parent are cut through their parent
+        units = _units(state, cells, code_wp.numpy()[cells], cell_nodes_np, cell_edges_np, edge_nodes_np,
+                       edge_cut, split_t, node_cut)  # fmt: skip
+        cn = units["corners"]
+        rv = _signed_volumes(rest_np, cn)
+        if np.any(rv <= 0):
+            c0 = int(np.argmax(rv <= 0))
+            raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
+                           f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
+        entry = tables.entry[units["edge_code"], units["node_code"]].astype(np.int64)
+        perm = rank_index(cn) if len(cn) else np.zeros(0, dtype=np.int32)
+        bad = entry < 0
+        bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
+        ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the checked parent
+        if ok.any():
+            bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], units["t"][ok], rest_np)
+        if not bad.any():
             break
+        rounds += 1
+        if rounds > _ROUNDS:
+            raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
+                           f"reductions (first: cell {int(units['cell'][bad][0])}); the structure is "
+                           "unchanged")  # fmt: skip
+        # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not
+        # be cut, drops the hit)
+        cand = units["new_edges"][bad]  # (b, 6) global edges this stroke cuts, -1 else
+        st_ = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
+        dist = np.where(cand >= 0, np.minimum(st_, 1.0 - st_), np.inf)
+        j = np.argmin(dist, axis=1)
+        has = np.isfinite(dist[np.arange(len(j)), j])
+            # a record left invalid by a cut node at a corner, with no new edge to snap: keep its corners uncut
+        stuck = (units["parent"][bad] >= 0) & ~has
+        if stuck.any():
+            corners = units["corners"][bad][stuck].ravel()
+            corners = corners[node_cut[corners] != 0]
+            node_cut[corners] = 0
+            forced[corners] = 0
+            state.is_protected[corners] = True
+            state.protected = np.union1d(state.protected, corners)
+        if not has.any() and not stuck.any():
+            raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
+                           "structure is unchanged")  # fmt: skip
+        e_sel = cand[np.arange(len(j)), j][has]
+        t_sel = split_t[e_sel]
+        target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
+        blocked = state.is_protected[target]
+        node_cut[target[~blocked]] = 1
+        forced[target[~blocked]] = 1
+        dropped |= np.isin(hits, e_sel[blocked])
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
@@ -415,8 +414,7 @@ class _ParentState:
     of the same cut made in one.
     """
 
-    def __init__(self, structure, edge_nodes: np.ndarray, dissolved: np.ndarray | None = None,
-                 keep_corners: bool = False):  # fmt: skip
+    def __init__(self, structure, edge_nodes: np.ndarray, dissolved: np.ndarray | None = None):
         self.structure = structure
         pr = structure._parents
         N, E = len(structure.node_rest), len(edge_nodes)
@@ -443,11 +441,16 @@ class _ParentState:
             ge = np.where(pr["split"][self.active][:, :, 0] >= 0, -1, ge).astype(np.int64)
             self.drop[ge[ge >= 0]] = False
             self.edges[self.active] = ge
-            # their inner nodes (split copies, front points) may not be snapped onto; their corners may, and
-            # then the record is dissolved (:meth:`dissolve`)
-            inner = np.unique(np.asarray(structure.cell_nodes)[self.children])
-            if not keep_corners:
-                inner = np.setdiff1d(inner, corners)
+            # their inner nodes (split copies, front points) may not be snapped onto; their other corners
+            # may: the record is then split again with that cut node
+            inner = np.setdiff1d(np.asarray(structure.cell_nodes)[self.children], corners)
+            # a corner on an edge the record has cut may not be snapped onto (that edge would need un-cutting)
+            on_cut = np.zeros(corners.shape, dtype=bool)
+            old_cut = pr["split"][self.active][:, :, 0] >= 0  # (a, 6)
+            for j, (u, v) in enumerate(TET_EDGES):
+                on_cut[:, u] |= old_cut[:, j]
+                on_cut[:, v] |= old_cut[:, j]
+            inner = np.union1d(inner, corners[on_cut])
             self.protected = inner
             self.is_protected[inner] = True
 
@@ -461,17 +464,6 @@ class _ParentState:
         self.front_ids = fronts[has].astype(np.int64)
         order = np.argsort(self.front_keys)
         self.front_keys, self.front_ids = self.front_keys[order], self.front_ids[order]
-
-    def dissolve(self, node_cut: np.ndarray, dissolved: np.ndarray) -> bool:
-        """Mark the records with a corner in ``node_cut`` dissolved (in place); whether any was."""
-        if not self.active.size:
-            return False
-        corners = self.structure._parents["corners"][self.active]
-        hit = (node_cut[corners] != 0).any(axis=1)
-        if not hit.any():
-            return False
-        dissolved[self.active[hit]] = True
-        return True
 
     def front_of(self, keys: np.ndarray) -> np.ndarray:
         """Existing crack-front node of each face key, -1 where none."""
@@ -528,10 +520,11 @@ def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, sp
     act = state.active
     ge = state.edges[act]  # (a, 6)
     cut_now = (ge >= 0) & (edge_cut[np.maximum(ge, 0)] == 1)
-    moved = cut_now.any(axis=1)
+    corner_cut = node_cut[pr["corners"][act]] != 0  # (a, 4)
+    moved = cut_now.any(axis=1) | corner_cut.any(axis=1)
     if not moved.any():
         return units
-    act, ge, cut_now = act[moved], ge[moved], cut_now[moved]
+    act, ge, cut_now, corner_cut = act[moved], ge[moved], cut_now[moved], corner_cut[moved]
     corners = pr["corners"][act].astype(np.int64)
     old_split = pr["split"][act].astype(np.int64)
     old_t = pr["t"][act].astype(np.float64)
@@ -541,7 +534,8 @@ def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, sp
     st_ = split_t[np.maximum(ge, 0)]
     t_par = np.where(cut_now, np.where(forward, st_, 1.0 - st_), old_t)
     extra = {
-        "corners": corners, "edge_code": code, "node_code": np.zeros(len(act), np.int64), "new_edges": new_e,
+        "corners": corners, "edge_code": code, "node_code": (corner_cut * (1 << np.arange(4))).sum(axis=1),
+        "new_edges": new_e,
         "old_split": old_split, "t": t_par, "parent": act.astype(np.int64), "cell": np.full(len(act), -1, np.int64),
     }  # fmt: skip
     return {name: np.concatenate([units[name], extra[name]]) for name in units}
@@ -639,18 +633,13 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
             old[need] = new.centres(cn[prog[need]])
         centre[prog] = old
         ids[m] = centre[rows[m]]
-    # cut nodes (cells only: a parent's nodes are never cut): one copy per set of groups the blade separated
+    # cut nodes: one copy per set of sub-tet groups the blade separated
     separated = fronts = np.zeros(0, np.int64)
     m = (refs >= REF_NODE) & (refs < REF_FACE)
     if m.any():
-        cells_mask = ~is_parent
-        sub = np.flatnonzero(cells_mask)
-        copies, separated, fronts = _cut_node_copies(structure, tables, units["cell"][sub], entry[sub], cn[sub],
-                                                     refs[sub], node_cut, new)  # fmt: skip
-        full = np.full((n, 4, 2), -1, dtype=np.int64)
-        full[sub] = copies
+        copies, separated, fronts = _cut_node_copies(structure, cn, refs, ids, new)
         r = refs[m] - REF_NODE
-        ids[m] = full[rows[m], r // 2, r % 2]
+        ids[m] = copies[rows[m], r // 2, r % 2]
 
     # cells left exactly as they were (intact codes whose cut nodes kept their id) are not replaced
     same = ~is_parent & (tables.count[entry, perm] == 1) & np.all(
@@ -698,62 +687,54 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     }
 
 
-def _cut_node_copies(structure, tables, cells, entry, cn, refs, node_cut, new: _NewNodes) -> np.ndarray:
-    """(n, 4, 2) global node of group ``g`` of corner ``k`` of each cut tet (-1 where unused); the cut nodes
+def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n, 4, 2) global node of group ``g`` of corner ``k`` of each changed tet (-1 where unused); the cut nodes
     the blade separated (duplicated); those whose star stayed joined (crack fronts).
 
-    Groups: for a complete entry the sides; otherwise one. Groups of two tets
-    are joined through each shared face at the node with an uncut corner
-    (the blade did not pass there); each connected set of a node's groups is
-    one copy, the first (lowest element) keeping the node's own id.
+    Each (tet, corner, group) is a provisional copy. Two sub-tets (of any
+    changed tets, partly cut records included) that share a face at a cut
+    node join their copies of it; a face whose three corners are all cut
+    nodes lies on the sweep and joins nothing (the blade passed there), and a
+    face on the cut polygon holds split points of one side only, so it is
+    shared by no sub-tet of the other side. Each connected set of a node's
+    copies is one global copy, the first (lowest element) keeping the node's
+    own id.
     """
-    n = len(cells)
-    complete = np.isin(tables.kind[entry], COMPLETE_KINDS)
-    group = np.where(complete[:, None], np.maximum(tables.corner_side[entry], 0), 0).astype(np.int64)  # (n, 4)
-    is_cut = node_cut[cn] != 0  # (n, 4)
-    used = np.zeros((n, 4, 2), dtype=bool)
-    for kk in range(4):
-        for g in (0, 1):
-            used[:, kk, g] = np.any(refs == REF_NODE + 2 * kk + g, axis=(1, 2))
-
-    # shared faces between two cut tets
-    cell_count = len(structure.cell_nodes)
-    slot = np.full(cell_count, -1, dtype=np.int64)
-    slot[cells] = np.arange(n)
-    faces = np.asarray(structure.cell_faces)[cells]  # (n, 4)
-    fc = np.asarray(structure.face_cells)[faces]  # (n, 4, 2)
-    other = np.where(fc[..., 0] == cells[:, None], fc[..., 1], fc[..., 0])
-    j = np.where(other >= 0, slot[np.maximum(other, 0)], -1)
-    i_idx, f_idx = np.nonzero(j > np.arange(n)[:, None])
-    j_idx = j[i_idx, f_idx]
-    a_pairs, b_pairs = [], []
-    if len(i_idx):
-        local_i = TET_FACES[f_idx]  # (P, 3) local corners in tet i
-        glob = cn[i_idx[:, None], local_i]  # (P, 3)
-        local_j = np.argmax(cn[j_idx][:, None, :] == glob[:, :, None], axis=2)  # (P, 3)
-        for x in range(3):
-            for y in range(3):
-                if x == y:
-                    continue
-                li_x, li_y, lj_x, lj_y = local_i[:, x], local_i[:, y], local_j[:, x], local_j[:, y]
-                m = is_cut[i_idx, li_x] & ~is_cut[i_idx, li_y]
-                ea = (i_idx * 4 + li_x) * 2 + group[i_idx, li_y]
-                eb = (j_idx * 4 + lj_x) * 2 + group[j_idx, lj_y]
-                a_pairs.append(ea[m])
-                b_pairs.append(eb[m])
-    alive = used.reshape(-1)
-    a = np.concatenate(a_pairs) if a_pairs else np.zeros(0, np.int64)
-    b = np.concatenate(b_pairs) if b_pairs else np.zeros(0, np.int64)
-    labels = _connected(n * 8, a, b, alive)
+    n = len(cn)
+    valid = refs[..., 0] >= 0  # (n, S)
+    m = (refs >= REF_NODE) & (refs < REF_FACE)  # (n, S, 4)
+    rows = np.broadcast_to(np.arange(n)[:, None, None], refs.shape)
+    r = np.where(m, refs - REF_NODE, 0)
+    elem = np.where(m, (rows * 4 + r // 2) * 2 + r % 2, -1)
+    ident = np.where(m, cn[rows, r // 2], ids)  # the node each corner stands for
+    used = np.zeros(n * 8, dtype=bool)
+    used[elem[m]] = True
+    # faces of the sub-tets that touch a cut node's copy (and are not made of cut nodes only)
+    fi, fp = ident[:, :, TET_FACES], elem[:, :, TET_FACES]  # (n, S, 4, 3)
+    has = (fp >= 0).any(axis=3) & ~(fp >= 0).all(axis=3) & valid[:, :, None]
+    fi, fp = fi[has], fp[has]  # (F, 3)
+    a = b = np.zeros(0, np.int64)
+    if len(fi):
+        order = np.argsort(fi, axis=1)
+        fi = np.take_along_axis(fi, order, axis=1)
+        fp = np.take_along_axis(fp, order, axis=1)
+        keys = _triple_keys(fi, int(fi.max()) + 1)
+        srt = np.argsort(keys, kind="stable")
+        ks = keys[srt]
+        pair = np.flatnonzero(ks[1:] == ks[:-1])  # a face is in at most two sub-tets
+        f1, f2 = srt[pair], srt[pair + 1]
+        both = (fp[f1] >= 0) & (fp[f2] >= 0)
+        a, b = fp[f1][both], fp[f2][both]
+    labels = _connected(n * 8, a, b, used)
     out = np.full((n, 4, 2), -1, dtype=np.int64)
-    elem = np.flatnonzero(alive)
-    node = cn.reshape(-1)[elem // 2]
-    lab = labels[elem]
+    elem_ids = np.flatnonzero(used)
+    node = cn.reshape(-1)[elem_ids // 2]
+    lab = labels[elem_ids]
     # per node, its distinct sets in order of their lowest element: the first keeps the id
     key = node.astype(np.int64) * (n * 8 + 1) + lab
     uniq, first, inv = np.unique(key, return_index=True, return_inverse=True)
     set_node = node[first]
-    order = np.lexsort((elem[first], set_node))
+    order = np.lexsort((elem_ids[first], set_node))
     rank = np.empty(len(uniq), dtype=np.int64)
     sorted_nodes = set_node[order]
     starts = np.r_[True, sorted_nodes[1:] != sorted_nodes[:-1]] if len(order) else np.zeros(0, bool)
@@ -764,7 +745,7 @@ def _cut_node_copies(structure, tables, cells, entry, cn, refs, node_cut, new: _
     extra = rank > 0
     if extra.any():
         target[extra] = new.add("copy", set_node[extra], set_node[extra], np.zeros(int(extra.sum())))
-    out.reshape(-1)[elem] = target[inv.ravel()]
+    out.reshape(-1)[elem_ids] = target[inv.ravel()]
     separated = np.unique(set_node[extra])
     single = np.setdiff1d(np.unique(set_node), separated)
     origin = np.asarray(structure.node_origin)
