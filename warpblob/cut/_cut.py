@@ -709,10 +709,16 @@ def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarr
     ident = np.where(m, cn[rows, r // 2], ids)  # the node each corner stands for
     used = np.zeros(n * 8, dtype=bool)
     used[elem[m]] = True
-    # faces of the sub-tets that touch a cut node's copy (and are not made of cut nodes only)
+    # faces of the sub-tets that touch a cut node's copy; those made of cut nodes only join nothing, except that
+    # a sub-tet whose four corners are all cut nodes (a sliver lying on the sweep, with no side of its own)
+    # joins the neighbour across its first shared face, so it is neither left alone nor a bridge
     fi, fp = ident[:, :, TET_FACES], elem[:, :, TET_FACES]  # (n, S, 4, 3)
-    has = (fp >= 0).any(axis=3) & ~(fp >= 0).all(axis=3) & valid[:, :, None]
-    fi, fp = fi[has], fp[has]  # (F, 3)
+    sub = np.broadcast_to(np.arange(n * refs.shape[1]).reshape(n, -1)[:, :, None], fp.shape[:3])
+    face_no = np.broadcast_to(np.arange(4), fp.shape[:3])
+    on_sweep = (fp >= 0).all(axis=3)
+    sliver_of = ((elem >= 0).all(axis=2) & valid).ravel()  # per sub-tet
+    has = (fp >= 0).any(axis=3) & valid[:, :, None]
+    fi, fp, sub, face_no, on_sweep = fi[has], fp[has], sub[has], face_no[has], on_sweep[has]  # (F, ...)
     a = b = np.zeros(0, np.int64)
     if len(fi):
         order = np.argsort(fi, axis=1)
@@ -723,6 +729,19 @@ def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarr
         ks = keys[srt]
         pair = np.flatnonzero(ks[1:] == ks[:-1])  # a face is in at most two sub-tets
         f1, f2 = srt[pair], srt[pair + 1]
+        keep = ~on_sweep[f1]
+        sw = np.flatnonzero(~keep)
+        if sw.size:
+            # faces on the sweep: only each sliver's first shared one (by its own face number)
+            side_is_sliver = [sliver_of[sub[f][sw]] for f in (f1, f2)]
+            owner = np.concatenate([sub[f1][sw][side_is_sliver[0]], sub[f2][sw][side_is_sliver[1]]])
+            rank = np.concatenate([face_no[f1][sw][side_is_sliver[0]], face_no[f2][sw][side_is_sliver[1]]])
+            which = np.concatenate([sw[side_is_sliver[0]], sw[side_is_sliver[1]]])
+            if owner.size:
+                o = np.lexsort((rank, owner))
+                first = np.r_[True, owner[o][1:] != owner[o][:-1]]
+                keep[which[o[first]]] = True
+        f1, f2 = f1[keep], f2[keep]
         both = (fp[f1] >= 0) & (fp[f2] >= 0)
         a, b = fp[f1][both], fp[f2][both]
     labels = _connected(n * 8, a, b, used)

@@ -17,9 +17,8 @@ move under the blade): ``mode="on_release"`` (the default, the thesis'
 non-progressive cutter) cuts once when the path ends; ``mode="progressive"``
 cuts every step with the whole stroke so far, meeting only the edges the
 mesh had when the stroke began, with the tets earlier steps left partly cut
-continued through their records. It is not yet reliable: a step that snaps
-onto a corner of such a tet has that snap refused, and the cut there is
-dropped (docs/cut.md gives the measured effect).
+continued through their records (docs/cut.md gives how close it comes to
+one stroke).
 """
 
 from __future__ import annotations

@@ -883,10 +883,9 @@ class Simulation:
         a :class:`~warpblob.mesh.TetStructure`): ``mode="on_release"`` (the
         default, the thesis' cutter) records the stroke and cuts once, at the
         step in which the path ends; ``mode="progressive"`` cuts every step
-        with the stroke so far (the tissue opens as the blade goes), which is
-        not yet reliable: where a step's blade snaps onto a corner of a tet an
-        earlier step left partly cut, that cut is dropped, and a stroke that
-        separates the body in one go may leave it joined (docs/cut.md). Each cut rebuilds the element data of the
+        with the stroke so far (the tissue opens as the blade goes); it may
+        make more cells than one stroke and, rarely, leave a few single-tet
+        fragments (measured in docs/cut.md). Each cut rebuilds the element data of the
         changed tets (:meth:`apply_cut`); pieces it severs fall on their own.
         A cutting tool does not push (give ``stiffness`` as well for contact).
 
