@@ -67,7 +67,7 @@ from ..sim._elements import DEGENERATE_VOLUME
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
 from ._sweep import SweepSurface
-from ._tables import COMPLETE_KINDS, REF_CELL, REF_FACE, REF_NODE, REF_SPLIT, cut_tables, rank_index
+from ._tables import REF_CELL, REF_FACE, REF_NODE, REF_SPLIT, cut_tables, rank_index
 
 __all__ = ["CutResult", "cut"]
 

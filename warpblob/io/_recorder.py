@@ -296,12 +296,16 @@ def _find(stage, schema, prim_path):
     raise SceneError(f"the stage has no {schema.__name__}")
 
 
+def _prim_at(path, schema, prim_path, time):
+    """(stage, prim, time code) of the first ``schema`` prim of the stage at ``path`` (or ``prim_path``)."""
+    stage = _stage(path)
+    return stage, _find(stage, schema, prim_path), Usd.TimeCode(time) if not isinstance(time, Usd.TimeCode) else time
+
+
 def load_tetmesh(path, *, time: float = Usd.TimeCode.Default(), prim_path: str | None = None) -> TetMesh:
     """The :class:`~warpblob.mesh.TetMesh` of a recorded stage at time code ``time`` (first TetMesh by default)."""
-    stage = _stage(path)  # held: the prims die with it
-    prim = _find(stage, UsdGeom.TetMesh, prim_path)
+    stage, prim, code = _prim_at(path, UsdGeom.TetMesh, prim_path, time)  # the stage held: prims die with it
     geom = UsdGeom.TetMesh(prim)
-    code = Usd.TimeCode(time) if not isinstance(time, Usd.TimeCode) else time
     nodes = np.asarray(geom.GetPointsAttr().Get(code), dtype=np.float32).reshape(-1, 3)
     tets = np.asarray(geom.GetTetVertexIndicesAttr().Get(code), dtype=np.int32).reshape(-1, 4)
     attr = prim.GetAttribute(_MATERIAL_ATTR)
@@ -312,10 +316,8 @@ def load_tetmesh(path, *, time: float = Usd.TimeCode.Default(), prim_path: str |
 
 def load_mesh_at(path, *, time: float = Usd.TimeCode.Default(), prim_path: str | None = None) -> SurfaceMesh:
     """The :class:`~warpblob.mesh.SurfaceMesh` of a recorded stage at ``time`` (``is_cut`` from its primvar)."""
-    stage = _stage(path)  # held: the prims die with it
-    prim = _find(stage, UsdGeom.Mesh, prim_path)
+    stage, prim, code = _prim_at(path, UsdGeom.Mesh, prim_path, time)
     geom = UsdGeom.Mesh(prim)
-    code = Usd.TimeCode(time) if not isinstance(time, Usd.TimeCode) else time
     v = np.asarray(geom.GetPointsAttr().Get(code), dtype=np.float32).reshape(-1, 3)
     f = np.asarray(geom.GetFaceVertexIndicesAttr().Get(code), dtype=np.int32).reshape(-1, 3)
     pv = UsdGeom.PrimvarsAPI(geom)
