@@ -242,6 +242,7 @@ def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
     else:
         model, h = wb.scenes.mug(), 0.06
     meshes = {}
+    monkeypatch.setattr(pipeline, "SUBBLOCKS", "bounds")  # the same samples taken on both
     for mode in ("points", "rows"):
         monkeypatch.setattr(pipeline, "SAMPLING", mode)
         meshes[mode] = wb.polygonize(model, cellsize=h)
@@ -250,6 +251,53 @@ def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
     np.testing.assert_array_equal(a.faces, b.faces)
     assert np.abs(a.vertices - b.vertices).max() < 1e-3 * h
     assert_closed_outward(b, model)
+
+
+@pytest.mark.parametrize("case", ["thin_and_tiny", "tumor", "mug", "medusa"])
+@pytest.mark.parametrize("sampling", ["points", "rows"])
+def test_dense_and_sub_block_sampling_give_the_same_mesh(case, sampling, monkeypatch):
+    """The cost model may sample every vertex of the active blocks instead of
+    bounding their sub-blocks first. The crossed edges and configurations are
+    the same (a stand-in lies on the proven side, like the sample it stands
+    for); the roots start from other guesses where a stand-in was one of the
+    four samples on an edge's line, so each vertex is the same to the root
+    tolerance, on the same grid edge."""
+    import importlib
+
+    pipeline = importlib.import_module("warpblob.polygonize._pipeline")
+    if case == "thin_and_tiny":
+        model, h = thin_and_tiny()
+    else:
+        model, h = wb.scenes.ALL[case](), 0.1
+    monkeypatch.setattr(pipeline, "SAMPLING", sampling)
+    meshes = {}
+    for path in ("bounds", "dense"):
+        monkeypatch.setattr(pipeline, "SUBBLOCKS", path)
+        meshes[path] = wb.polygonize(model, cellsize=h, relax=False)
+    a, b = meshes["bounds"], meshes["dense"]
+    assert not a.stats["dense_sampling"] and b.stats["dense_sampling"]
+    assert a.stats["grid_evaluations"] < b.stats["grid_evaluations"]
+    assert a.stats["interval_evaluations"] > b.stats["interval_evaluations"]
+    assert (a.vertex_count, a.face_count) == (b.vertex_count, b.face_count)
+    # vertex k of both meshes sits on the same grid edge, each within the tolerance of the surface
+    assert np.abs(a.vertices - b.vertices).max() < 1e-2 * h
+    for mesh in (a, b):
+        assert_closed_outward(mesh, model)
+    same = np.all(a.faces == b.faces, axis=1)
+    assert same.mean() > 0.99  # only fans whose smallest-angle choice was a near tie differ
+
+
+def test_the_cost_model_samples_densely_on_long_tapes_in_array_mode(monkeypatch):
+    """Array mode samples a long tape densely (the sub-block bounds cost more
+    than they save) and a short one after the bounds; point mode always bounds."""
+    import importlib
+
+    pipeline = importlib.import_module("warpblob.polygonize._pipeline")
+    monkeypatch.setattr(pipeline, "SAMPLING", "rows")
+    assert wb.polygonize(wb.scenes.towers(), cellsize=0.3).stats["dense_sampling"]
+    assert not wb.polygonize(wb.scenes.tumor(), cellsize=0.2).stats["dense_sampling"]
+    monkeypatch.setattr(pipeline, "SAMPLING", "points")
+    assert not wb.polygonize(wb.scenes.towers(), cellsize=0.3).stats["dense_sampling"]
 
 
 def test_zero_area_triangles_are_dropped_after_welding_their_coincident_corners(device):

@@ -199,9 +199,11 @@ def test_a_short_edge_on_a_boundary_is_left_alone():
 
 
 def test_a_chain_of_short_edges_moves_no_vertex_farther_than_the_weld_length():
-    """Three vertices in a row, 0.8 of the weld length apart: two of them
-    weld, the third (1.6 of it from the first) stays, and every vertex that
-    went has a kept one within the weld length."""
+    """Three vertices in a row, 0.8 of the weld length apart: the first two
+    weld (the third, 1.6 of it from the first, stays) or, when the tie of
+    equal lengths puts the second edge first, both ends weld onto the middle
+    one; either way every vertex that went has a kept one within the weld
+    length."""
     v, f = sphere()
     a = 0
     d = tangent(v, a, 0.8 * LIMIT)
@@ -209,7 +211,7 @@ def test_a_chain_of_short_edges_moves_no_vertex_farther_than_the_weld_length():
     b = len(v)
     v3, f3 = split(v2, f2, b, d, 1, 3)
     mesh, welded = weld(v3, f3)
-    assert welded == 1
+    assert welded in (1, 2)
     assert_manifold(mesh)
     kept = mesh.vertices.astype(np.float64)
     # every kept vertex is an original one, exactly

@@ -374,15 +374,19 @@ def block_chunk(lm: LinearModel, n_blocks: int) -> tuple[int, int]:
     return chunk, chunk * row_bytes
 
 
-def launch_blocks(kernel, n_blocks: int, inputs: list, outputs: list, lm: LinearModel, device, threads=None):
+def launch_blocks(
+    kernel, n_blocks: int, inputs: list, outputs: list, lm: LinearModel, device, threads=None, *, min_chunk: int = 2
+):
     """Launch an array-mode kernel over ``n_blocks`` blocks in chunks of
     :func:`block_chunk`; the kernel takes ``inputs``, then ``first_block``,
-    the scratch ``rows`` and the result slot, then ``offset`` and ``outputs``."""
+    the scratch ``rows`` and the result slot, then ``offset`` and ``outputs``.
+    ``min_chunk``: the fewest blocks a CPU thread takes at a time (see
+    :func:`warpblob._parallel.launch`)."""
     chunk, nbytes = block_chunk(lm, n_blocks)
     rows = wp.zeros(nbytes // 4, dtype=wp.float32, device=device)
     for first in range(0, n_blocks, chunk):
         count = min(chunk, n_blocks - first)
-        launch(kernel, count, [*inputs, first, rows, lm.registers], outputs, device, threads, min_chunk=2)
+        launch(kernel, count, [*inputs, first, rows, lm.registers], outputs, device, threads, min_chunk=min_chunk)
 
 
 def grid_field(model, origin, cellsize: float, shape, *, device=None, threads: int | None = None) -> np.ndarray:

@@ -14,8 +14,22 @@ BLOCK = 8  # cells per block side
 CELLS = BLOCK * BLOCK * BLOCK
 assert CELLS == BLOCK_POINTS  # array-mode evaluation works on whole blocks
 MAX_LOOP = 12
-#: smallest piece of a CPU launch whose items each run a root search (microseconds each)
-HEAVY_CHUNK = 64
+# Smallest pieces of CPU launches (warpblob._parallel.launch). A launch split
+# over the thread pool costs about 0.15 ms more than one piece, plus 20-35 us
+# per piece (a trivial kernel over 4,096 items: 22 us in one piece, 150-240 us
+# in four; over 65,536: 150 us against 400-700 us in sixteen), so a piece must
+# carry about half a millisecond of work to pay: tumor at h = 0.14 took 6.5 ms
+# on 2 threads with the old pieces and 4.2 ms on one.
+#: items that each run a root search (0.3-3 us each)
+HEAVY_CHUNK = 1024
+#: cells of the counting and face kernels (about 30 ns each), triangles of the
+#: angle and length tests of the weld and relaxation (10-15 ns each)
+CELL_CHUNK = 1 << 14
+#: blocks of an array-mode walk (15-60 us each)
+BLOCK_CHUNK = 16
+#: items that each take a few nanoseconds (a lookup, a compare, a copy: the
+#: weld's and relaxation's bookkeeping)
+LIGHT_CHUNK = 1 << 18
 
 _BLOCK = wp.constant(BLOCK)
 _CELLS = wp.constant(CELLS)
@@ -560,6 +574,7 @@ def make_sample_kernels(value_only, block_value) -> dict:
         block_map: wp.array(dtype=wp.int32),
         block_states: wp.array(dtype=wp.int32),
         states: wp.array(dtype=wp.int32),
+        dense: int,
         offset: int,
         samples: wp.array(dtype=wp.float32),
         evaluated: wp.array(dtype=wp.int32),
@@ -567,11 +582,15 @@ def make_sample_kernels(value_only, block_value) -> dict:
         """Field at the vertices each active block owns (local [0, 8)^3), where
         the vertex touches a sub-block that may hold surface (in this block or
         a neighbour); elsewhere a stand-in value on the proven side of ``iso``.
-        Every grid vertex has one owner, so every cell sees the same values."""
+        Every grid vertex has one owner, so every cell sees the same values.
+        With ``dense`` (no sub-block bounds: every sub-block of an active
+        block may hold surface) every owned vertex is sampled."""
         tid = wp.tid() + offset
         a, c, lc = active_cell(g, active, tid)
         v = wp.vec3i(c[0] * _BLOCK + lc[0], c[1] * _BLOCK + lc[1], c[2] * _BLOCK + lc[2])
-        need = vertex_need(g, v, block_map, block_states, states)
+        need = wp.vec2i(1, 0)
+        if dense == 0:
+            need = vertex_need(g, v, block_map, block_states, states)
         if need[0] != 0:
             samples[tid] = value_only(m, vertex_position(g, v[0], v[1], v[2]), 0.0)[0]
             evaluated[tid] = 1
@@ -588,6 +607,7 @@ def make_sample_kernels(value_only, block_value) -> dict:
         block_map: wp.array(dtype=wp.int32),
         block_states: wp.array(dtype=wp.int32),
         states: wp.array(dtype=wp.int32),
+        dense: int,
         first_block: int,
         rows: wp.array(dtype=wp.float32),
         result_slot: int,
@@ -605,7 +625,9 @@ def make_sample_kernels(value_only, block_value) -> dict:
         want = ctx.base + (result_slot + 1) * _CELLS
         for l in range(_CELLS):
             lc = local_cell(l)
-            need = vertex_need(g, wp.vec3i(ctx.corner[0] + lc[0], ctx.corner[1] + lc[1], ctx.corner[2] + lc[2]), block_map, block_states, states)
+            need = wp.vec2i(1, 0)
+            if dense == 0:
+                need = vertex_need(g, wp.vec3i(ctx.corner[0] + lc[0], ctx.corner[1] + lc[1], ctx.corner[2] + lc[2]), block_map, block_states, states)
             rows[want + l] = float(need[0])
             samples[a * _CELLS + l] = wp.where(need[1] == 1, iso + 0.5, iso - 0.5)
             evaluated[a * _CELLS + l] = need[0]

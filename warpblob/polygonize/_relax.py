@@ -14,7 +14,7 @@ from .._parallel import launch
 from .._stages import check_memory, scan
 from ..field._kernels import ModelArrays, make_evaluate
 from . import _weld
-from ._kernels import HEAVY_CHUNK, make_project, smallest_angle_cosine
+from ._kernels import CELL_CHUNK, HEAVY_CHUNK, LIGHT_CHUNK, make_project, smallest_angle_cosine
 
 #: relaxation: triangles whose smallest angle is under this (degrees) are improved
 RELAX_ANGLE = 10.0
@@ -240,16 +240,22 @@ def relax(
     n_triangles = triangles.shape[0]
     cos_limit = float(np.cos(np.radians(RELAX_ANGLE)))
     flags = wp.zeros(n_vertices, dtype=wp.int32, device=device)
-    launch(skinny_vertices_kernel, n_triangles, [positions, triangles, cos_limit], [flags], device, threads)
+    launch(
+        skinny_vertices_kernel, n_triangles, [positions, triangles, cos_limit], [flags],
+        device, threads, min_chunk=CELL_CHUNK,
+    )  # fmt: skip
     counts = wp.empty(n_triangles, dtype=wp.int32, device=device)
-    launch(flagged_corners_kernel, n_triangles, [triangles, flags], [counts], device, threads)
+    launch(flagged_corners_kernel, n_triangles, [triangles, flags], [counts], device, threads, min_chunk=LIGHT_CHUNK)
     offsets, n_corners = scan(counts)
     if n_corners == 0:
         return positions, normals, colors, 0, 0
     check_memory("polygonize", "relaxation", n_corners * 20 + n_vertices * 40, limit)
     corner_vertex = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
     corner_triangle = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
-    launch(emit_corners_kernel, n_triangles, [triangles, flags, offsets], [corner_vertex, corner_triangle], device, threads)
+    launch(
+        emit_corners_kernel, n_triangles, [triangles, flags, offsets], [corner_vertex, corner_triangle],
+        device, threads, min_chunk=LIGHT_CHUNK,
+    )  # fmt: skip
     wp.utils.radix_sort_pairs(corner_vertex, corner_triangle, n_corners)
     new = [wp.clone(a) for a in (positions, normals, colors)]
     moved = wp.zeros(n_vertices, dtype=wp.int32, device=device)
@@ -264,11 +270,14 @@ def relax(
     for _ in range(8):
         revert.zero_()
         inputs = [positions, new[0], triangles, moved, cos_limit, float(_weld.WELD * h)]
-        launch(flipped_kernel, n_triangles, inputs, [revert], device, threads)
+        launch(flipped_kernel, n_triangles, inputs, [revert], device, threads, min_chunk=CELL_CHUNK)
         _, n_revert = scan(revert)
         if n_revert == 0:
             break
-        launch(revert_kernel, n_vertices, [revert, positions, normals, colors], [*new, moved], device, threads)
+        launch(
+            revert_kernel, n_vertices, [revert, positions, normals, colors], [*new, moved],
+            device, threads, min_chunk=LIGHT_CHUNK,
+        )  # fmt: skip
     else:  # pragma: no cover - the moves never settled: keep none of them
         return positions, normals, colors, 0, int(evaluations.numpy().sum())
     _, n_moved = scan(moved)

@@ -19,7 +19,8 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from .._stages import compact, compact_kernel, scan
+from .._stages import compact_kernel, scan, scans
+from ._kernels import CELL_CHUNK, LIGHT_CHUNK
 
 #: mesh edges shorter than WELD cells are contracted. A triangle of the face
 #: stage has its corners on one cell's edges, so no edge longer than the cell's
@@ -38,29 +39,24 @@ def short_edges_kernel(
     offset: int,
     flags: wp.array(dtype=wp.int32),
     counts: wp.array(dtype=wp.int32),
+    valence: wp.array(dtype=wp.int32),
 ):
     """``counts`` 1 for a triangle with an edge at most ``limit`` long, whose
-    ends are flagged (every writer stores 1, so concurrent writes agree)."""
+    ends are flagged (every writer stores 1, so concurrent writes agree), and
+    the triangles at each vertex (integer atomics: the counts do not depend
+    on the order), which the contraction needs when there is a short edge."""
     tid = wp.tid() + offset
     t = triangles[tid]
     found = int(0)
     for k in range(3):
         a = t[k]
         b = t[(k + 1) % 3]
+        wp.atomic_add(valence, a, 1)
         if wp.length_sq(positions[a] - positions[b]) <= limit * limit:
             flags[a] = 1
             flags[b] = 1
             found = 1
     counts[tid] = found
-
-
-@wp.kernel(enable_backward=False)
-def valence_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, valence: wp.array(dtype=wp.int32)):
-    """Triangles at each vertex (integer atomics: the counts do not depend on the order)."""
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    for k in range(3):
-        wp.atomic_add(valence, t[k], 1)
 
 
 @wp.kernel(enable_backward=False)
@@ -120,31 +116,21 @@ def compact_triangles_kernel(
     triangles: wp.array(dtype=wp.vec3i),
     keep: wp.array(dtype=wp.int32),
     scanned: wp.array(dtype=wp.int32),
+    index: wp.array(dtype=wp.int32),
     offset: int,
     out: wp.array(dtype=wp.vec3i),
 ):
+    """The kept triangles, in order, each corner ``v`` renumbered ``index[v]``."""
     tid = wp.tid() + offset
     if keep[tid] != 0:
-        out[scanned[tid]] = triangles[tid]
+        t = triangles[tid]
+        out[scanned[tid]] = wp.vec3i(index[t[0]], index[t[1]], index[t[2]])
 
 
 @wp.kernel(enable_backward=False)
-def remap_triangles_kernel(
-    triangles: wp.array(dtype=wp.vec3i), index: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
-):
-    """Replace each corner ``v`` by ``index[v]``."""
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    out[tid] = wp.vec3i(index[t[0]], index[t[1]], index[t[2]])
-
-
-@wp.kernel(enable_backward=False)
-def used_vertices_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, used: wp.array(dtype=wp.int32)):
-    tid = wp.tid() + offset
-    t = triangles[tid]
-    used[t[0]] = 1
-    used[t[1]] = 1
-    used[t[2]] = 1
+def set_kernel(ids: wp.array(dtype=wp.int32), value: int, offset: int, out: wp.array(dtype=wp.int32)):
+    """``out[ids[i]] = value``."""
+    out[ids[wp.tid() + offset]] = value
 
 
 @wp.kernel(enable_backward=False)
@@ -180,25 +166,29 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None):
         triangles at the ends of short edges are read back to the host.
     """
     n = triangles.shape[0]
-    flags = wp.zeros(positions.shape[0], dtype=wp.int32, device=device)
+    n_vertices = positions.shape[0]
+    flags = wp.zeros(n_vertices, dtype=wp.int32, device=device)
     counts = wp.empty(n, dtype=wp.int32, device=device)
-    launch(short_edges_kernel, n, [positions, triangles, float(WELD * h)], [flags, counts], device, threads)
+    valence = wp.zeros(n_vertices, dtype=wp.int32, device=device)
+    launch(
+        short_edges_kernel, n, [positions, triangles, float(WELD * h)], [flags, counts, valence],
+        device, threads, min_chunk=CELL_CHUNK,
+    )  # fmt: skip
     _, n_short = scan(counts)  # host sync: whether any edge is short
     if n_short == 0:
         return triangles, positions, normals, colors, 0
     touching = wp.empty(n, dtype=wp.int32, device=device)
-    launch(touching_kernel, n, [triangles, flags], [touching], device, threads)
-    ids = compact(touching, device, threads)
-    valence = wp.zeros_like(flags)
-    launch(valence_kernel, n, [triangles], [valence], device, threads)
-    n_patch = ids.shape[0]
+    launch(touching_kernel, n, [triangles, flags], [touching], device, threads, min_chunk=LIGHT_CHUNK)
+    scanned, n_patch = scan(touching)
+    ids = wp.empty(n_patch, dtype=wp.int32, device=device)
+    launch(compact_kernel, n, [touching, scanned], [ids], device, threads, min_chunk=LIGHT_CHUNK)
     patch = wp.empty(n_patch, dtype=wp.vec3i, device=device)
     corners = wp.empty((n_patch, 3), dtype=wp.vec3, device=device)
     corner_flags = wp.empty(n_patch, dtype=wp.vec3i, device=device)
     corner_valence = wp.empty(n_patch, dtype=wp.vec3i, device=device)
     launch(
         gather_patch_kernel, n_patch, [triangles, positions, flags, valence, ids],
-        [patch, corners, corner_flags, corner_valence], device, threads,
+        [patch, corners, corner_flags, corner_valence], device, threads, min_chunk=LIGHT_CHUNK,
     )  # fmt: skip
     tris = patch.numpy().reshape(-1, 3)  # host sync: the patch, about six triangles per end of a short edge
     vertices, local = np.unique(tris, return_inverse=True)
@@ -212,20 +202,35 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None):
     corners, alive = contract(local, points, candidate, counts, WELD * h)
     if np.all(alive):
         return triangles, positions, normals, colors, 0
+    # a vertex goes when no triangle is left at it: none outside the patch, none alive in it
+    outside = counts - np.bincount(local.reshape(-1), minlength=len(vertices))
+    referenced = np.bincount(corners[alive].reshape(-1), minlength=len(vertices)) > 0
+    removed = vertices[(outside == 0) & ~referenced].astype(np.int32)
     # a triangle that went is written with three equal corners, which the compaction drops
     new = np.where(alive[:, None], vertices[corners], tris[:, :1])
     welded = wp.clone(triangles)
     launch(
         scatter_triangles_kernel, n_patch, [ids, wp.array(new.astype(np.int32), dtype=wp.vec3i, device=device)],
-        [welded], device, threads,
+        [welded], device, threads, min_chunk=LIGHT_CHUNK,
     )  # fmt: skip
     keep = wp.empty(n, dtype=wp.int32, device=device)
-    launch(distinct_kernel, n, [welded], [keep], device, threads)
-    offsets, n_kept = scan(keep)
-    out = wp.empty(n_kept, dtype=wp.vec3i, device=device)
-    launch(compact_triangles_kernel, n, [welded, keep, offsets], [out], device, threads)
-    out = drop_unused(out, positions, normals, colors, device, threads)
-    return (*out, positions.shape[0] - out[1].shape[0])
+    launch(distinct_kernel, n, [welded], [keep], device, threads, min_chunk=LIGHT_CHUNK)
+    used = wp.full(n_vertices, 1, dtype=wp.int32, device=device)
+    launch(set_kernel, len(removed), [wp.array(removed, dtype=wp.int32, device=device), 0], [used], device, threads)
+    (offsets, new_index), (n_kept, n_used) = scans(keep, used)  # host sync: the sizes of the welded mesh
+    kept = wp.empty(n_used, dtype=wp.int32, device=device)
+    launch(compact_kernel, n_vertices, [used, new_index], [kept], device, threads, min_chunk=LIGHT_CHUNK)
+    out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
+    launch(
+        gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads,
+        min_chunk=LIGHT_CHUNK,
+    )  # fmt: skip
+    renumbered = wp.empty(n_kept, dtype=wp.vec3i, device=device)
+    launch(
+        compact_triangles_kernel, n, [welded, keep, offsets, new_index], [renumbered], device, threads,
+        min_chunk=LIGHT_CHUNK,
+    )  # fmt: skip
+    return (renumbered, *out, len(removed))
 
 
 def contract(
@@ -345,13 +350,13 @@ def contract(
                 break
             chosen[(pair // n)[clash]] = False
         gone = live[row[~stay & chosen[owner]]]  # (the stars taken are disjoint: each row once)
-        np.subtract.at(valence, cur[gone].reshape(-1), 1)
+        valence -= np.bincount(cur[gone].reshape(-1), minlength=n)  # (bincount: ufunc.at is slow)
         alive[gone] = False
         pick = chosen[node_owner]
         changed = live[row[order[pick]]]
-        np.subtract.at(valence, cur[changed].reshape(-1), 1)
+        valence -= np.bincount(cur[changed].reshape(-1), minlength=n)
         cur[changed] = after[pick]
-        np.add.at(valence, after[pick].reshape(-1), 1)
+        valence += np.bincount(after[pick].reshape(-1), minlength=n)
         # a short edge next round has an end among this round's and the other a candidate next
         # to it: work on those candidates' stars only
         live = live[alive[live]]
@@ -411,11 +416,14 @@ def _apart(keys, length, keep, move, eu, ew, n: int) -> np.ndarray:
     """Which of the edges ``(keep[i], move[i])`` go this round: each that is
     the shortest of those with an end at or next to its own ends, so that
     the stars of the edges taken are disjoint. Equal lengths (coincident
-    vertices) are ordered by a hash of the edge key, not the key, so that a
-    row of them is not taken one per round (as in Luby's independent sets)."""
+    vertices, or a column of grid vertices the surface passes through, as on
+    the mug) are ordered by a hash of the edge key, so that a row of them is
+    not taken one per round (Luby's independent sets). The hash must mix
+    (splitmix64's finalizer, :func:`_mix`): the keys along such a row are an
+    arithmetic sequence, which a multiplicative hash keeps in order (mug at
+    h = 0.05: 30 rounds with one, 7 with the mixer)."""
     rank = np.empty(len(keys), dtype=np.int64)
-    scramble = (keys.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(16)
-    rank[np.lexsort((scramble, length))] = np.arange(len(keys))
+    rank[np.lexsort((_mix(keys), length))] = np.arange(len(keys))
     least = np.full(n, len(keys))
     np.minimum.at(least, keep, rank)
     np.minimum.at(least, move, rank)
@@ -423,6 +431,16 @@ def _apart(keys, length, keep, move, eu, ew, n: int) -> np.ndarray:
     np.minimum.at(spread, eu, least[ew])
     np.minimum.at(spread, ew, least[eu])
     return (spread[keep] == rank) & (spread[move] == rank)
+
+
+def _mix(keys: np.ndarray) -> np.ndarray:
+    """splitmix64's finalizer (Steele, Lea & Flood, *Fast splittable
+    pseudorandom number generators*, OOPSLA 2014) of int64 ``keys``: uint64
+    values with no trace of the keys' order."""
+    z = keys.astype(np.uint64) + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
 
 
 def _isin(query: np.ndarray, keys: np.ndarray) -> np.ndarray:
@@ -486,20 +504,3 @@ def _expand(first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """(owner, index): the indices ``first[i] .. first[i] + count[i] - 1`` of each ``i``, flat, with their ``i``."""
     owner = np.repeat(np.arange(len(first)), count)
     return owner, np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count) + first[owner]
-
-
-def drop_unused(triangles, positions, normals, colors, device, threads=None):
-    """Remove the vertices no triangle uses and renumber the triangles."""
-    n = positions.shape[0]
-    used = wp.zeros(n, dtype=wp.int32, device=device)
-    launch(used_vertices_kernel, triangles.shape[0], [triangles], [used], device, threads)
-    new_index, n_used = scan(used)
-    if n_used == n:
-        return triangles, positions, normals, colors
-    kept = wp.empty(n_used, dtype=wp.int32, device=device)
-    launch(compact_kernel, n, [used, new_index], [kept], device, threads)
-    out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
-    launch(gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads)
-    renumbered = wp.empty_like(triangles)
-    launch(remap_triangles_kernel, triangles.shape[0], [triangles, new_index], [renumbered], device, threads)
-    return (renumbered, *out)
