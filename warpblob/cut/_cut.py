@@ -228,11 +228,12 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     bvh, corners = _bvh(sweep, dev)
     edge_nodes = _shared(edge_nodes_np, wp.vec2i, dev)
     # edges live cells use (a split edge stays alive, unused, until the garbage collection)
-    in_use = np.zeros(E, dtype=np.uint8)
-    in_use[np.asarray(structure.cell_edges)[np.asarray(structure.cell_alive)]] = 1
+    cell_edges_wp = _shared(np.asarray(structure.cell_edges), vec6i, dev)
+    cell_alive_wp = _shared(np.asarray(structure.cell_alive).view(np.uint8), wp.uint8, dev)
+    edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
+    launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads)
     if node_limit is not None:
-        in_use[np.asarray(structure.edge_nodes).max(axis=1) >= int(node_limit)] = 0
-    edge_ok = _shared(in_use, wp.uint8, dev)
+        edge_ok.assign(edge_ok.numpy() * (edge_nodes_np.max(axis=1) < int(node_limit)).astype(np.uint8))
     frame = positions_np if configuration == "current" else np.asarray(structure.node_rest)
     positions = _shared(frame, wp.vec3, dev)
     hit_t = wp.empty(E, dtype=float, device=dev)
@@ -251,11 +252,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     cell_nodes_np = np.asarray(structure.cell_nodes)
     cell_edges_np = np.asarray(structure.cell_edges)
     all_hits, all_t = hits, t_hit
-    arrays = {
-        "cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev),
-        "cell_edges": _shared(cell_edges_np, vec6i, dev),
-        "cell_alive": _shared(np.asarray(structure.cell_alive).view(np.uint8), wp.uint8, dev),
-    }
+    arrays = {"cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev), "cell_edges": cell_edges_wp,
+              "cell_alive": cell_alive_wp}  # fmt: skip
     code_wp = wp.empty(C, dtype=wp.int32, device=dev)
     changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
     split_t = np.full(E, -1.0)
@@ -701,19 +699,24 @@ def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarr
     own id.
     """
     n = len(cn)
-    valid = refs[..., 0] >= 0  # (n, S)
-    m = (refs >= REF_NODE) & (refs < REF_FACE)  # (n, S, 4)
-    rows = np.broadcast_to(np.arange(n)[:, None, None], refs.shape)
-    r = np.where(m, refs - REF_NODE, 0)
+    # only the tets that hold a cut node, and only as many sub-tet slots as the fullest uses
+    holds = ((refs >= REF_NODE) & (refs < REF_FACE)).any(axis=(1, 2))
+    sel = np.flatnonzero(holds)
+    width = max(int((refs[sel, :, 0] >= 0).sum(axis=1).max()) if sel.size else 1, 1)
+    refs_s, ids_s = refs[sel, :width], ids[sel, :width]
+    valid = refs_s[..., 0] >= 0  # (n', S')
+    m = (refs_s >= REF_NODE) & (refs_s < REF_FACE)  # (n', S', 4)
+    rows = np.broadcast_to(sel[:, None, None], refs_s.shape)
+    r = np.where(m, refs_s - REF_NODE, 0)
     elem = np.where(m, (rows * 4 + r // 2) * 2 + r % 2, -1)
-    ident = np.where(m, cn[rows, r // 2], ids)  # the node each corner stands for
+    ident = np.where(m, cn[rows, r // 2], ids_s)  # the node each corner stands for
     used = np.zeros(n * 8, dtype=bool)
     used[elem[m]] = True
     # faces of the sub-tets that touch a cut node's copy; those made of cut nodes only join nothing, except that
     # a sub-tet whose four corners are all cut nodes (a sliver lying on the sweep, with no side of its own)
     # joins the neighbour across its first shared face, so it is neither left alone nor a bridge
     fi, fp = ident[:, :, TET_FACES], elem[:, :, TET_FACES]  # (n, S, 4, 3)
-    sub = np.broadcast_to(np.arange(n * refs.shape[1]).reshape(n, -1)[:, :, None], fp.shape[:3])
+    sub = np.broadcast_to(np.arange(len(sel) * width).reshape(len(sel), -1)[:, :, None], fp.shape[:3])
     face_no = np.broadcast_to(np.arange(4), fp.shape[:3])
     on_sweep = (fp >= 0).all(axis=3)
     sliver_of = ((elem >= 0).all(axis=2) & valid).ravel()  # per sub-tet

@@ -7,6 +7,7 @@ import warp as wp
 from ..mesh._structure import vec6i
 
 __all__ = [
+    "mark_edges_in_use_kernel",
     "to_rest_kernel",
     "cell_codes_kernel",
     "flag_positive_kernel",
@@ -139,3 +140,15 @@ def to_rest_kernel(
         out[i] = p - (positions[node] - rest[node])
     else:
         out[i] = p
+
+
+@wp.kernel(enable_backward=False)
+def mark_edges_in_use_kernel(
+    cell_edges: wp.array(dtype=vec6i), cell_alive: wp.array(dtype=wp.uint8), offset: int,
+    in_use: wp.array(dtype=wp.uint8),
+):  # fmt: skip
+    """1 for every edge of a live cell (a split edge stays alive, unused, until the garbage collection)."""
+    c = wp.tid() + offset
+    if cell_alive[c] != wp.uint8(0):
+        for j in range(6):
+            in_use[cell_edges[c][j]] = wp.uint8(1)
