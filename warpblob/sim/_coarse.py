@@ -195,10 +195,15 @@ class CoarseSpace:
         group = np.take_along_axis(np.cumsum(new, axis=1) - 1, rep, axis=1)
         u = np.where(live, new.sum(axis=1), 0)
         start = np.concatenate([[0], np.cumsum(u * u)])
-        slot = start[:-1, None, None] + group[:, :, None] * u[:, None, None] + group[:, None, :]
-        pair_slot = np.where(live[:, None, None], slot, 0).reshape(T, 16)
+        # most tets lie in one aggregate (u = 1: one slot for all 16 corner pairs); only the others expand
+        pair_slot = np.repeat(np.where(live, start[:-1], 0).astype(np.int32), 16).reshape(T, 16)
         slot_code = np.zeros(int(start[-1]), dtype=np.int64)
-        slot_code[slot[live].ravel()] = (corner[:, :, None] * G + corner[:, None, :])[live].ravel()
+        single = np.flatnonzero(live & (u == 1))
+        slot_code[start[single]] = corner[single, 0] * G + corner[single, 0]
+        multi = np.flatnonzero(live & (u > 1))
+        slot = start[multi, None, None] + group[multi, :, None] * u[multi, None, None] + group[multi, None, :]
+        pair_slot[multi] = slot.reshape(-1, 16)
+        slot_code[slot.ravel()] = (corner[multi, :, None] * G + corner[multi, None, :]).ravel()
         pairs, pair_of_slot = np.unique(slot_code, return_inverse=True)
         pair_of_slot = pair_of_slot.ravel()
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
@@ -209,7 +214,7 @@ class CoarseSpace:
 
         self.node_aggregate = array(node_aggregate)
         self.aggregate_offsets, self.aggregate_nodes = array(offsets), array(order.astype(np.int32))
-        self.pair_slot = array(pair_slot.ravel().astype(np.int32))
+        self.pair_slot = array(pair_slot.ravel())
         self.pair_offsets = array(pair_offsets)
         self.pair_slots = array(np.argsort(pair_of_slot, kind="stable").astype(np.int32))
         self.pair_aggregates = array(np.stack([pairs // G, pairs % G], axis=1).astype(np.int32), wp.vec2i)
