@@ -665,8 +665,9 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     unit_material = np.where(is_parent, -1, material_of[np.maximum(units["cell"], 0)])
     if is_parent.any():
         # a parent's material is its pieces' (all the same)
-        first_child = {int(p): int(c) for c, p in zip(children[::-1], cp[children][::-1])}
-        unit_material[is_parent] = [material_of[first_child[int(p)]] for p in parents_split]
+        of_record = np.zeros(pr.count, dtype=material_of.dtype)
+        of_record[cp[children]] = material_of[children]
+        unit_material[is_parent] = of_record[parents_split]
     counts = valid[replace].sum(axis=1)
     return {
         "nodes": new.chunks,

@@ -201,21 +201,17 @@ class SweepSurface:
             a, b = tool.edge_points(poses)
             return cls.from_blade(a, b)
         quads = tool.wall_quads(poses)  # (T, S, 4, 3): bit, bit_next, top_next, top
-        tris, strips = [], []
-        for k in range(quads.shape[1]):  # one strip per wall segment (a handful), not per mesh entity
-            bit, bit_next = quads[:, k, 0], quads[:, k, 1]
-            top, top_next = quads[0, k, 3], quads[0, k, 2]
-            a = np.concatenate([[top], bit])
-            b = np.concatenate([[top_next], bit_next])
-            tris.append(_strip(a, b).reshape(-1, 2, 3, 3))
-            strips.append(np.full((len(a) - 1, 2), k, dtype=np.int32))
-        # time-major: an edge keeps its first hit by triangle order, so order the triangles by when they are swept
-        tri = np.stack(tris, axis=1).reshape(-1, 3, 3)
-        return cls(tri, np.stack(strips, axis=1).reshape(-1))
+        # each wall segment's strip: its edge at the top of the first pose, then the bit's edge at every pose;
+        # time-major (sample by sample, every segment of a sample together): an edge keeps its first hit
+        a = np.concatenate([quads[:1, :, 3], quads[:, :, 0]])  # (T + 1, S, 3)
+        b = np.concatenate([quads[:1, :, 2], quads[:, :, 1]])
+        strips = np.broadcast_to(np.arange(quads.shape[1], dtype=np.int32)[None, :, None], (len(a) - 1, quads.shape[1], 2))
+        return cls(_strip(a, b), strips.reshape(-1))
 
 
 def _strip(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(2 (T - 1), 3, 3) triangles of the quads ``a_i, b_i, b_{i+1}, a_{i+1}``."""
-    first = np.stack([a[:-1], b[:-1], b[1:]], axis=1)
-    second = np.stack([a[:-1], b[1:], a[1:]], axis=1)
-    return np.stack([first, second], axis=1).reshape(-1, 3, 3)
+    """Triangles of the quads ``a_i, b_i, b_{i+1}, a_{i+1}`` along the first axis of (T, ..., 3) ``a`` and ``b``:
+    (2 (T - 1) x ..., 3, 3), the two of a quad together, quads in order."""
+    first = np.stack([a[:-1], b[:-1], b[1:]], axis=-2)
+    second = np.stack([a[:-1], b[1:], a[1:]], axis=-2)
+    return np.stack([first, second], axis=-3).reshape(-1, 3, 3)

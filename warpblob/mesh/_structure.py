@@ -304,30 +304,6 @@ def lower_bound_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def insert_edges_kernel(
-    edge_nodes: wp.array(dtype=wp.vec2i),
-    edge_alive: wp.array(dtype=wp.uint8),
-    bits: int,
-    keys: wp.array(dtype=wp.int64),
-    values: wp.array(dtype=wp.int32),
-):
-    """Claim a slot per live edge by compare-and-swap, probing linearly."""
-    e = wp.tid()
-    if edge_alive[e] == wp.uint8(0):
-        return
-    key = edge_key(edge_nodes[e][0], edge_nodes[e][1])
-    mask = (1 << bits) - 1
-    s = _edge_slot(key, bits)
-    placed = int(0)
-    while placed == 0:
-        if wp.atomic_cas(keys, s, _EMPTY_WP, key) == _EMPTY_WP:
-            values[s] = e
-            placed = 1
-        else:
-            s = (s + 1) & mask
-
-
-@wp.kernel(enable_backward=False)
 def insert_edge_ids_kernel(
     edge_nodes: wp.array(dtype=wp.vec2i),
     edge_ids: wp.array(dtype=wp.int32),
@@ -335,17 +311,19 @@ def insert_edge_ids_kernel(
     keys: wp.array(dtype=wp.int64),
     values: wp.array(dtype=wp.int32),
 ):
-    """Claim a slot for each listed edge (a table with room): compare-and-swap on empty or deleted slots."""
+    """Claim a slot (empty or deleted) for each listed edge by compare-and-swap, probing linearly."""
     i = wp.tid()
-    key = edge_key(edge_nodes[i][0], edge_nodes[i][1])
+    e = edge_ids[i]
+    key = edge_key(edge_nodes[e][0], edge_nodes[e][1])
     mask = (1 << bits) - 1
     s = _edge_slot(key, bits)
     placed = int(0)
     while placed == 0:
-        if keys[s] < wp.int64(0):
-            keys[s] = key
-            values[s] = edge_ids[i]
-            placed = 1
+        old = keys[s]
+        if old < wp.int64(0):
+            if wp.atomic_cas(keys, s, old, key) == old:
+                values[s] = e
+                placed = 1
         else:
             s = (s + 1) & mask
 
@@ -429,10 +407,17 @@ def _build_table(edge_nodes: wp.array, edge_alive: wp.array, live_edges: int, de
     bits = _table_bits(live_edges)
     keys = wp.full(1 << bits, EMPTY, dtype=wp.int64, device=device)
     values = wp.full(1 << bits, EMPTY, dtype=wp.int32, device=device)
-    # Warp's CPU atomics are plain loads and stores: this launch must not be range-split across threads
-    inputs = [edge_nodes, edge_alive, bits, keys, values]
-    wp.launch(insert_edges_kernel, dim=edge_nodes.shape[0], inputs=inputs, device=device)
+    ids = np.flatnonzero(edge_alive.numpy()).astype(np.int32)
+    _insert_edges(edge_nodes, ids, bits, keys, values, device)
     return keys.numpy(), values.numpy(), bits
+
+
+def _insert_edges(edge_nodes: wp.array, ids: np.ndarray, bits: int, keys: wp.array, values: wp.array, device) -> None:
+    """Put edges ``ids`` in the table ``keys``/``values`` (with room for them) in one kernel launch."""
+    if len(ids):
+        # Warp's CPU atomics are plain loads and stores: this launch must not be range-split across threads
+        wp.launch(insert_edge_ids_kernel, dim=len(ids), device=device,
+                  inputs=[edge_nodes, wp.array(ids, dtype=wp.int32, device=device), bits, keys, values])  # fmt: skip
 
 
 def _face_edge_slots() -> np.ndarray:
@@ -1503,13 +1488,11 @@ class TetStructure:
             self._build_table(wp.get_device("cpu"))
             return
         # the kernel writes the table's own memory (no copy either way)
-        keys = wp.array(self._table_keys, dtype=wp.int64, device="cpu", copy=False)
-        values = wp.array(self._table_values, dtype=wp.int32, device="cpu", copy=False)
-        nodes = wp.array(self._stores["edge"]["nodes"][edge_ids], dtype=wp.vec2i, device="cpu")
-        # Warp's CPU atomics are plain loads and stores: one launch, not range-split
-        wp.launch(insert_edge_ids_kernel, dim=len(edge_ids),
-                  inputs=[nodes, wp.array(edge_ids, dtype=wp.int32, device="cpu"), self._table_bits, keys, values],
-                  device="cpu")  # fmt: skip
+        cpu = wp.get_device("cpu")
+        keys = wp.array(self._table_keys, dtype=wp.int64, device=cpu, copy=False)
+        values = wp.array(self._table_values, dtype=wp.int32, device=cpu, copy=False)
+        nodes = wp.array(self._stores["edge"]["nodes"], dtype=wp.vec2i, device=cpu, copy=False)
+        _insert_edges(nodes, np.asarray(edge_ids, dtype=np.int32), self._table_bits, keys, values, cpu)
         self._table_used += len(edge_ids)
 
     def components(self) -> np.ndarray:
