@@ -251,19 +251,17 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     rest_np = np.asarray(structure.node_rest, dtype=np.float64)
     cell_nodes_np = np.asarray(structure.cell_nodes)
     cell_edges_np = np.asarray(structure.cell_edges)
-    all_hits, all_t = hits, t_hit
     arrays = {"cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev), "cell_edges": cell_edges_wp,
               "cell_alive": cell_alive_wp}  # fmt: skip
     code_wp = wp.empty(C, dtype=wp.int32, device=dev)
     changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
     split_t = np.full(E, -1.0)
-    forced = np.zeros(N, dtype=np.uint8)  # cut nodes the reduction chose (kept when the records change)
     rounds = 0
     state = _ParentState(structure, edge_nodes_np)
-    sel = ~state.drop[all_hits]
-    hits, t_hit = all_hits[sel], all_t[sel]
+    sel = ~state.drop[hits]
+    hits, t_hit = hits[sel], t_hit[sel]
     ends = edge_nodes_np[hits]
-    node_cut = forced.copy()
+    node_cut = np.zeros(N, dtype=np.uint8)
     node_cut[ends[t_hit < snap, 0]] = 1
     node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
     node_cut[state.protected] = 0
@@ -316,7 +314,6 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
             corners = units["corners"][bad][stuck].ravel()
             corners = corners[node_cut[corners] != 0]
             node_cut[corners] = 0
-            forced[corners] = 0
             state.is_protected[corners] = True
             state.protected = np.union1d(state.protected, corners)
         if not has.any() and not stuck.any():
@@ -327,7 +324,6 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
         blocked = state.is_protected[target]
         node_cut[target[~blocked]] = 1
-        forced[target[~blocked]] = 1
         dropped |= np.isin(hits, e_sel[blocked])
     result.reductions = rounds
     cut_edges = hits[keep]
@@ -412,7 +408,7 @@ class _ParentState:
     of the same cut made in one.
     """
 
-    def __init__(self, structure, edge_nodes: np.ndarray, dissolved: np.ndarray | None = None):
+    def __init__(self, structure, edge_nodes: np.ndarray):
         self.structure = structure
         pr = structure._parents
         N, E = len(structure.node_rest), len(edge_nodes)
@@ -423,13 +419,10 @@ class _ParentState:
         alive = np.asarray(structure.cell_alive)
         cp = np.asarray(structure.cell_parent).astype(np.int64)
         live = pr["alive"].copy()
-        if dissolved is not None:
-            live &= ~dissolved[: pr.count]
-        # a piece of an ended or dissolved record is an ordinary cell
+        # a piece of an ended record is an ordinary cell
         self.cell_parent = np.full(len(cp), -1, dtype=np.int64)
         if pr.count:
             self.cell_parent = np.where((cp >= 0) & live[np.maximum(cp, 0)], cp, -1)
-        self.dissolved = np.flatnonzero(pr["alive"] & ~live)
         self.children = np.flatnonzero(alive & (self.cell_parent >= 0))
         self.active = np.unique(self.cell_parent[self.children])
         if self.children.size:
@@ -679,7 +672,7 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
         "parent": np.repeat(record[replace], counts),
         "records": records,
         "new_record_ids": new_ids,
-        "ended": np.concatenate([parents_split[~progressive[is_parent]], state.dissolved]).astype(np.int64),
+        "ended": parents_split[~progressive[is_parent]].astype(np.int64),
         "split": (int((counts > 1).sum()), int(counts[counts > 1].sum())),
         "sources": np.concatenate(new.sources).astype(np.int32) if new.sources else np.zeros((0, 2), np.int32),
         "weights": np.concatenate(new.weights).astype(np.float32) if new.weights else np.zeros(0, np.float32),
