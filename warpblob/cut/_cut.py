@@ -167,7 +167,7 @@ def _compact(flags: wp.array, device, threads) -> np.ndarray:
 
 
 def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, collect: bool = True,
-        configuration: str = "current", node_limit: int | None = None, device=None,
+        configuration: str = "current", node_limit: int | None = None, materials=None, device=None,
         threads: int | None = None) -> CutResult:  # fmt: skip
     """Cut ``structure`` along ``sweep`` (module docstring); the structure is edited in place.
 
@@ -186,6 +186,14 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
             stroke re-applied whole (a simulation's progressive scalpel) then
             meets only the edges that were there when it began, not those its
             earlier steps made, and gives the cells of one stroke.
+        materials: cut only tets of these material ids (an int or an iterable
+            of ints; default: every tet). Tets of other materials, and their
+            nodes, are left exactly as they were: an edge or node they share
+            with a cut tet is split or duplicated for the cut tet only, so
+            where the blade crossed an interface the cut tets' sub-tets no
+            longer share its faces (those faces become boundary on both
+            sides), and everywhere else the interface stays joined (the
+            skull drilled, the tissue under it untouched).
         device: Warp device of the kernels (default: Warp's default).
         threads: CPU threads.
 
@@ -213,6 +221,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     snap = float(snap)
     if configuration not in ("current", "rest"):
         raise CutError(f"cut: configuration must be 'current' or 'rest', got {configuration!r}")
+    selected = _materials(materials)
     dev = resolve_device(device)
     result = CutResult(seconds=dict.fromkeys(STAGES, 0.0))
     if sweep.triangle_count == 0:
@@ -229,7 +238,10 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     edge_nodes = _shared(edge_nodes_np, wp.vec2i, dev)
     # edges live cells use (a split edge stays alive, unused, until the garbage collection)
     cell_edges_wp = _shared(np.asarray(structure.cell_edges), vec6i, dev)
-    cell_alive_wp = _shared(np.asarray(structure.cell_alive).view(np.uint8), wp.uint8, dev)
+    cell_alive_np = np.asarray(structure.cell_alive).view(np.uint8)
+    if selected is not None:  # only the chosen materials' cells take part (their edges, their codes)
+        cell_alive_np = cell_alive_np & np.isin(np.asarray(structure.cell_material), selected).astype(np.uint8)
+    cell_alive_wp = _shared(cell_alive_np, wp.uint8, dev)
     edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
     launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads)
     if node_limit is not None:
@@ -365,6 +377,20 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.seconds["gc"] = time.perf_counter() - t4
     structure.stats["last_cut"] = result.summary()
     return result
+
+
+def _materials(materials) -> np.ndarray | None:
+    """The material ids a cut is restricted to, as a sorted int32 array (None: every material)."""
+    if materials is None:
+        return None
+    values = [materials] if isinstance(materials, (int, np.integer)) else materials
+    try:
+        values = list(values)
+    except TypeError:
+        raise CutError(f"cut: materials must be an int or an iterable of ints, got {materials!r}") from None
+    if not values or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in values):
+        raise CutError(f"cut: materials must be a non-empty set of int material ids, got {materials!r}")
+    return np.unique(np.asarray(values, dtype=np.int32))
 
 
 def _positive(tables, entry, perm, cn, t_local, rest) -> np.ndarray:
