@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import warpblob as wb
+import warpblob.usd
 
 
 def run_cli(*args, cwd=None):
@@ -214,7 +215,7 @@ def test_tetrahedralize_then_quality(tmp_path):
     out = tmp_path / "peanut_volume.usda"
     r = run_cli("tetrahedralize", "peanut", "--cellsize", "0.15", "--out", str(out))
     assert r.returncode == 0, r.stderr
-    mesh = wb.TetMesh.from_usd(out)
+    mesh = wb.usd.load_tetmesh(out)
     direct = wb.tetrahedralize(wb.scenes.peanut(), cellsize=0.15)
     assert mesh.tets.shape == direct.tets.shape
     r = run_cli("quality", str(out))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import warpblob as wb
+import warpblob.usd
 from warpblob.cli import _parser, main
 
 PLANES = ["0,0,0.05,0,0,1", "0.03,0,0,1,0,0", "0,0,0,1,1,0"]
@@ -46,7 +47,7 @@ def test_stage_reads_back_with_every_piece_on_one_side(cut_run):
     stage = Usd.Stage.Open(str(out / "cut.usda"))
     assert stage.GetDefaultPrim().GetPath() == "/Cut"
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
-    volume = wb.TetMesh.from_usd(str(out / "cut.usda"), prim_path="/Cut/Volume")
+    volume = wb.usd.load_tetmesh(str(out / "cut.usda"), prim_path="/Cut/Volume")
     original = wb.tetrahedralize(wb.scenes.tumor(), cellsize=0.2)
     # the cut adds tets, loses no volume and inverts none
     assert volume.tet_count > original.tet_count

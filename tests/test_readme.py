@@ -32,6 +32,6 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch):
     assert namespace["force"][2] > 0 and abs(namespace["change"]) < 0.01  # pushed down, volume kept
     pieces = namespace["pieces"]
     assert namespace["result"].components >= 8 and pieces.to_tetmesh().volumes().min() > 0
-    assert wb.TetMesh.from_usd(str(tmp_path / "tumor_cut.usda")).tet_count == pieces.cell_count
+    assert wb.usd.load_tetmesh(str(tmp_path / "tumor_cut.usda")).tet_count == pieces.cell_count
     assert wb.usd.load_mesh(str(tmp_path / "tumor_cut_surface.usda")).is_cut.any()
     assert open(tmp_path / "tumor_cut.png", "rb").read(4) == b"\x89PNG"

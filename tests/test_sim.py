@@ -423,7 +423,7 @@ def test_record_writes_the_motion_of_volume_and_surface(tmp_path):
     np.testing.assert_allclose(np.asarray(volume.GetPointsAttr().Get(3)), sim.positions, atol=1e-7)
     surface = UsdGeom.Mesh(stage.GetPrimAtPath("/Simulation/Surface"))
     np.testing.assert_allclose(np.asarray(surface.GetPointsAttr().Get(3)), sim.surface_positions(), atol=1e-7)
-    assert len(volume.GetSurfaceFaceVertexIndicesAttr().Get()) == len(mesh.surface_faces())
+    assert len(volume.GetSurfaceFaceVertexIndicesAttr().Get(0)) == len(mesh.surface_faces())
     with pytest.raises(SimulationError, match="every"):
         sim.record(tmp_path / "x.usda", 3, every=0)
 

@@ -13,6 +13,7 @@ import pytest
 from pxr import Usd, UsdGeom, Vt
 
 import warpblob as wb
+import warpblob.usd
 from warpblob.mesh import SurfaceMesh
 from warpblob.mesh._tetmesh import TET_EDGES, TET_FACES, TetMesh
 
@@ -200,7 +201,7 @@ def test_to_pyvista_cells_and_quality():
 def test_usd_round_trip(tmp_path, suffix):
     mesh = grid_mesh(3, (1.0, 0.5, 2.0), (0.0, -1.0, 4.0))
     mesh = TetMesh(mesh.nodes, mesh.tets, np.arange(mesh.tet_count) % 3)
-    path = mesh.to_usd(tmp_path / f"grid{suffix}", prim_path="/World/Tissue")
+    path = wb.usd.save_tetmesh(mesh, tmp_path / f"grid{suffix}", prim_path="/World/Tissue")
     assert path == tmp_path / f"grid{suffix}" and sorted(os.listdir(tmp_path)) == [f"grid{suffix}"]
 
     stage = Usd.Stage.Open(str(path))
@@ -218,19 +219,19 @@ def test_usd_round_trip(tmp_path, suffix):
     extent = np.array(prim.GetExtentAttr().Get())
     np.testing.assert_allclose(extent, [mesh.nodes.min(axis=0), mesh.nodes.max(axis=0)])
 
-    back = TetMesh.from_usd(path)
+    back = wb.usd.load_tetmesh(path)
     np.testing.assert_array_equal(back.nodes, mesh.nodes)
     np.testing.assert_array_equal(back.tets, mesh.tets)
     np.testing.assert_array_equal(back.material, mesh.material)
     assert back.stats["prim"] == "/World/Tissue"
-    assert TetMesh.from_usd(path, "/World/Tissue").tet_count == mesh.tet_count
+    assert wb.usd.load_tetmesh(path, "/World/Tissue").tet_count == mesh.tet_count
 
 
 def test_usd_overwrite_and_no_material(tmp_path):
     path = tmp_path / "cube.usda"
-    grid_mesh(2).to_usd(path)
-    TetMesh(cube_mesh().nodes, cube_mesh().tets).to_usd(path, meters_per_unit=1.0)
-    back = TetMesh.from_usd(path)
+    wb.usd.save_tetmesh(grid_mesh(2), path)
+    wb.usd.save_tetmesh(TetMesh(cube_mesh().nodes, cube_mesh().tets), path, meters_per_unit=1.0)
+    back = wb.usd.load_tetmesh(path)
     assert back.tet_count == 5 and back.material is None
     assert UsdGeom.GetStageMetersPerUnit(Usd.Stage.Open(str(path))) == 1.0
     assert os.listdir(tmp_path) == ["cube.usda"]
@@ -248,7 +249,7 @@ def test_usd_finds_inverted_tets_and_reads_left_handed(tmp_path):
     prim.CreateOrientationAttr(UsdGeom.Tokens.leftHanded)
     assert len(UsdGeom.TetMesh.FindInvertedElements(prim, Usd.TimeCode.Default())) == 0
     stage.Save()
-    back = TetMesh.from_usd(tmp_path / "left.usda")  # no default prim: the first TetMesh
+    back = wb.usd.load_tetmesh(tmp_path / "left.usda")  # no default prim: the first TetMesh
     assert np.all(back.volumes() > 0)
     assert back.volume() == pytest.approx(1.0)
 
@@ -256,29 +257,29 @@ def test_usd_finds_inverted_tets_and_reads_left_handed(tmp_path):
 def test_usd_errors(tmp_path):
     mesh = cube_mesh()
     with pytest.raises(wb.WarpblobError, match="must end in one of"):
-        mesh.to_usd(tmp_path / "mesh.obj")
+        wb.usd.save_tetmesh(mesh, tmp_path / "mesh.obj")
     with pytest.raises(wb.WarpblobError, match="prim_path"):
-        mesh.to_usd(tmp_path / "mesh.usda", prim_path="relative")
+        wb.usd.save_tetmesh(mesh, tmp_path / "mesh.usda", prim_path="relative")
     with pytest.raises(wb.SceneError, match="does not exist"):
-        mesh.to_usd(tmp_path / "missing" / "mesh.usda")
+        wb.usd.save_tetmesh(mesh, tmp_path / "missing" / "mesh.usda")
     with pytest.raises(wb.SceneError, match="no such file"):
-        TetMesh.from_usd(tmp_path / "nothing.usda")
+        wb.usd.load_tetmesh(tmp_path / "nothing.usda")
     stage = Usd.Stage.CreateNew(str(tmp_path / "xform.usda"))
     stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/Root").GetPrim())
     stage.Save()
     with pytest.raises(wb.SceneError, match="no TetMesh prim under </Root>"):
-        TetMesh.from_usd(tmp_path / "xform.usda")
+        wb.usd.load_tetmesh(tmp_path / "xform.usda")
     with pytest.raises(wb.SceneError, match="not a TetMesh"):
-        TetMesh.from_usd(tmp_path / "xform.usda", "/Root")
+        wb.usd.load_tetmesh(tmp_path / "xform.usda", "/Root")
     with pytest.raises(wb.SceneError, match="no prim"):
-        TetMesh.from_usd(tmp_path / "xform.usda", "/Other")
+        wb.usd.load_tetmesh(tmp_path / "xform.usda", "/Other")
     bad = Usd.Stage.CreateNew(str(tmp_path / "bad.usda"))
     prim = UsdGeom.TetMesh.Define(bad, "/Bad")
     prim.CreatePointsAttr(Vt.Vec3fArray([(0, 0, 0), (1, 0, 0), (0, 1, 0)]))
     prim.CreateTetVertexIndicesAttr(Vt.Vec4iArray([(0, 1, 2, 7)]))
     bad.Save()
     with pytest.raises(wb.SceneError, match="names a node outside"):
-        TetMesh.from_usd(tmp_path / "bad.usda")
+        wb.usd.load_tetmesh(tmp_path / "bad.usda")
 
 
 def test_repr_is_a_short_summary():

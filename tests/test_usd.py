@@ -562,7 +562,7 @@ def test_failed_save_keeps_the_old_file_and_leaves_no_temporary(tmp_path, monkey
 WRITERS = {
     "save_model": lambda path: wbusd.save_model(wb.scenes.peanut(), path),
     "save_mesh": lambda path: wbusd.save_mesh(wb.polygonize(wb.scenes.peanut(), cellsize=0.3), path),
-    "TetMesh.to_usd": lambda path: wb.TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]).to_usd(path),
+    "save_tetmesh": lambda path: wbusd.save_tetmesh(wb.TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]), path),
 }
 
 
@@ -599,9 +599,9 @@ def _mesh_file(tmp_path):
 LOADERS = {
     "load_model": (wbusd.load_model, lambda tmp: wbusd.save_model(wb.scenes.peanut(), tmp / "model.usda")),
     "load_mesh": (wbusd.load_mesh, _mesh_file),
-    "TetMesh.from_usd": (
-        wb.TetMesh.from_usd,
-        lambda tmp: wb.TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]).to_usd(tmp / "tets.usda"),
+    "load_tetmesh": (
+        wbusd.load_tetmesh,
+        lambda tmp: wbusd.save_tetmesh(wb.TetMesh(np.eye(4, 3, k=-1), [[0, 1, 2, 3]]), tmp / "tets.usda"),
     ),
 }
 

@@ -258,13 +258,14 @@ def cmd_polygonize(args) -> int:
 
 
 def cmd_tetrahedralize(args) -> int:
+    from .io.usd import save_tetmesh
     from .tetrahedralize import tetrahedralize
 
     _prepare_outputs((args.out, "--out", _MESH_SUFFIXES))
     model = load_scene(args.scene)
     mesh = tetrahedralize(model, cellsize=args.cellsize, interior_cellsize=args.interior_cellsize, device=args.device, progress=True)
     try:
-        mesh.to_usd(args.out)
+        save_tetmesh(mesh, args.out)
     except OSError as exc:
         raise WarpblobError(str(exc)) from None
     q = mesh.quality()
@@ -276,10 +277,24 @@ def cmd_tetrahedralize(args) -> int:
 
 
 def cmd_quality(args) -> int:
-    from .mesh import TetMesh, format_quality
+    from .io._recorder import load_tetmesh_at
+    from .mesh import format_quality
 
-    mesh = TetMesh.from_usd(args.file, prim_path=args.prim)
+    mesh = load_tetmesh_at(args.file, prim_path=args.prim)
     print(format_quality(mesh.quality()))
+    return 0
+
+
+def cmd_view(args) -> int:
+    from .io._movie import render_gif, view
+
+    if args.gif:
+        out = render_gif(args.file, args.gif, frames=args.frames, progress=True)
+        print(f"wrote {out} and its frames in {out.with_name(out.stem + '_frames')}")
+        return 0
+    text = view(args.file, window=False if args.no_window else None)
+    if text:
+        print(text)
     return 0
 
 
@@ -322,6 +337,13 @@ def _parser() -> argparse.ArgumentParser:
     qu.add_argument("file", help="USD file holding a TetMesh")
     qu.add_argument("--prim", default=None, help="TetMesh prim path (default: the default prim)")
     qu.set_defaults(func=cmd_quality)
+
+    vw = sub.add_parser("view", help="open a USD stage or mesh file in a PyVista window with a time slider")
+    vw.add_argument("file", help=".usd/.usda/.usdc/.usdz stage or .stl/.obj/.ply/.vtk/.vtp/.vtu mesh")
+    vw.add_argument("--no-window", action="store_true", help="print the summary and how to open it instead")
+    vw.add_argument("--gif", default=None, help="render the stage off screen to this animated .gif (and PNG frames)")
+    vw.add_argument("--frames", type=int, default=60, help="at most this many frames in the GIF")
+    vw.set_defaults(func=cmd_view)
 
     i = sub.add_parser("info", help="counts, depth, box and bytes of a scene's linearized form")
     i.add_argument("scene", help="USD file (.usda/.usdc/.usd) or built-in scene name")

@@ -229,12 +229,6 @@ class SurfaceMesh:
         """The arrays as a dict of numpy arrays."""
         return {"vertices": self.vertices, "faces": self.faces, "normals": self.normals, "colors": self.colors}
 
-    def to_usd(self, path, *, prim_path: str = "/Surface"):
-        """Write the mesh as a ``UsdGeom.Mesh`` stage at ``path`` (see :func:`warpblob.usd.save_mesh`)."""
-        from ..io.usd import save_mesh
-
-        return save_mesh(self, path, prim_path=prim_path)
-
     def to_pyvista(self):
         """A ``pyvista.PolyData`` with ``Normals`` and ``RGB`` point data."""
         import pyvista as pv

@@ -15,14 +15,12 @@ one opposite node ``k``, listed counter-clockwise seen from outside; edge
 
 from __future__ import annotations
 
-import os
-import pathlib
 from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
 
-from .._errors import SceneError, WarpblobError
+from .._errors import WarpblobError
 from ._surface import bounds_text
 
 __all__ = ["TetMesh", "TET_FACES", "TET_EDGES"]
@@ -41,7 +39,6 @@ TET_EDGES_WP = wp.constant(wp.types.matrix(shape=(6, 2), dtype=wp.int32)(*TET_ED
 #: (4, 4) index into TET_EDGES of the edge joining two local nodes (-1 on the diagonal)
 TET_LOCAL_EDGE_WP = wp.constant(wp.types.matrix(shape=(4, 4), dtype=wp.int32)(*_local_edge.ravel().tolist()))
 
-_MATERIAL_ATTR = "warpblob:material"
 
 
 def _frozen(arr: np.ndarray) -> np.ndarray:
@@ -262,112 +259,6 @@ class TetMesh:
         if self.material is not None:
             grid.cell_data["material"] = self.material
         return grid
-
-    def to_usd(self, path, *, prim_path: str = "/TetMesh", meters_per_unit: float | None = None) -> pathlib.Path:
-        """Write the mesh to ``path`` as a ``UsdGeom.TetMesh`` (``.usda`` text, ``.usdc``/``.usd`` binary).
-
-        The prim gets ``points``, ``tetVertexIndices``, ``surfaceFaceVertexIndices``
-        (:meth:`surface_faces`), ``extent`` and, when present, the int array
-        ``warpblob:material``. The stage has upAxis Z, ``metersPerUnit`` and the
-        root prim of ``prim_path`` as default prim. The file is written beside
-        ``path`` under a temporary name and renamed over it, so ``path`` is
-        either untouched or complete.
-
-        Args:
-            path: target file; its folder must exist.
-            prim_path: absolute path of the TetMesh prim.
-            meters_per_unit: stage metres per model unit (default
-                :data:`warpblob.io.usd.METERS_PER_UNIT`, 0.01: centimetres).
-
-        Returns:
-            ``path`` as a :class:`pathlib.Path`.
-
-        Raises:
-            SceneError: bad suffix or missing folder (checked before any work).
-            WarpblobError: bad prim path or ``meters_per_unit``.
-            OSError: USD could not write.
-        """
-        from pxr import Sdf, UsdGeom, Vt
-
-        from ..io.usd import METERS_PER_UNIT, check_target, export_atomically, new_stage
-
-        target = check_target(path, "TetMesh.to_usd")
-        text = str(prim_path)
-        if not Sdf.Path.IsValidPathString(text) or not Sdf.Path(text).IsAbsolutePath() or text == "/":
-            raise WarpblobError(f"TetMesh.to_usd: prim_path must be an absolute prim path, got {prim_path!r}")
-        mpu = METERS_PER_UNIT if meters_per_unit is None else meters_per_unit
-        if not (isinstance(mpu, (int, float)) and np.isfinite(mpu) and mpu > 0):
-            raise WarpblobError(f"TetMesh.to_usd: meters_per_unit must be a positive number, got {mpu!r}")
-        stage = new_stage(meters_per_unit=float(mpu))
-        prim = UsdGeom.TetMesh.Define(stage, text)
-        stage.SetDefaultPrim(stage.GetPrimAtPath(Sdf.Path(text).GetPrefixes()[0]))
-        points = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(self.nodes))
-        prim.CreatePointsAttr(points)
-        prim.CreateTetVertexIndicesAttr(Vt.Vec4iArray.FromNumpy(np.ascontiguousarray(self.tets)))
-        prim.CreateSurfaceFaceVertexIndicesAttr(Vt.Vec3iArray.FromNumpy(np.ascontiguousarray(self.surface_faces())))
-        prim.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
-        prim.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(points))
-        if self.material is not None:
-            attr = prim.GetPrim().CreateAttribute(_MATERIAL_ATTR, Sdf.ValueTypeNames.IntArray, custom=True)
-            attr.Set(Vt.IntArray.FromNumpy(np.ascontiguousarray(self.material)))
-        return export_atomically(stage.GetRootLayer(), target, "TetMesh.to_usd")
-
-    @classmethod
-    def from_usd(cls, path, prim_path: str | None = None) -> TetMesh:
-        """Read a ``UsdGeom.TetMesh`` prim written by :meth:`to_usd` or any other tool.
-
-        Coordinates are taken as written (no xformOps, no unit conversion);
-        tets of a ``leftHanded`` prim are reordered to positive orientation.
-
-        Args:
-            path: a USD file.
-            prim_path: the TetMesh prim; by default the default prim, or the
-                first TetMesh under it (or on the stage, without a default prim).
-
-        Raises:
-            SceneError: the file is missing or not USD, holds no such TetMesh,
-                or its arrays do not make a valid :class:`TetMesh`; the
-                message names the file.
-        """
-        from pxr import Sdf, Usd, UsdGeom
-
-        from ..io.usd import open_stage
-
-        source = os.fspath(path)
-        stage = open_stage(source, "TetMesh.from_usd")
-        if prim_path is not None:
-            text = str(prim_path)
-            if not Sdf.Path.IsValidPathString(text) or not Sdf.Path(text).IsAbsolutePath():
-                raise SceneError(f"{source}: prim_path must be an absolute prim path, got {prim_path!r}")
-            prim = stage.GetPrimAtPath(text)
-            if not prim:
-                raise SceneError(f"{source}: no prim <{text}>")
-        else:
-            root = stage.GetDefaultPrim() or stage.GetPseudoRoot()
-            prim = next((p for p in Usd.PrimRange(root) if p.IsA(UsdGeom.TetMesh)), None)
-            if prim is None:
-                raise SceneError(f"{source}: no TetMesh prim under <{root.GetPath()}>")
-        if not prim.IsA(UsdGeom.TetMesh):
-            kind = prim.GetTypeName() or "typeless"
-            raise SceneError(f"{source}: prim <{prim.GetPath()}> is a {kind} prim, not a TetMesh")
-        mesh = UsdGeom.TetMesh(prim)
-        points, tets = mesh.GetPointsAttr().Get(), mesh.GetTetVertexIndicesAttr().Get()
-        if points is None or tets is None:
-            raise SceneError(f"{source}: TetMesh <{prim.GetPath()}> has no points or no tetVertexIndices")
-        tets = np.asarray(tets, dtype=np.int32).reshape(-1, 4)
-        if mesh.GetOrientationAttr().Get() == UsdGeom.Tokens.leftHanded:
-            tets = tets[:, [0, 2, 1, 3]]
-        attr = prim.GetAttribute(_MATERIAL_ATTR)
-        material = np.asarray(attr.Get(), dtype=np.int32) if attr and attr.HasValue() else None
-        try:
-            return cls(
-                np.asarray(points, dtype=np.float32).reshape(-1, 3),
-                tets,
-                material,
-                stats={"source": source, "prim": str(prim.GetPath())},
-            )
-        except WarpblobError as err:
-            raise SceneError(f"{source}: TetMesh <{prim.GetPath()}>: {err}") from None
 
 
 def _parity(faces: np.ndarray) -> np.ndarray:

@@ -6,7 +6,9 @@ matrix-free preconditioned conjugate gradient, fixed nodes, a frictional
 ground; a surface rides on the tets by barycentric coordinates; rigid tools
 press the tissue through the model's field carried by the deformation, a
 penalty inside the implicit solve (after the contact model of Shirazian's
-2014 thesis, :mod:`warpblob.sim._contact`).
+2014 thesis, :mod:`warpblob.sim._contact`); rigid materials move as rigid
+bodies, anchored or free, coupled to the soft tissue in the same implicit
+solve (:mod:`warpblob.sim._rigid`).
 """
 
 from ._contact import ToolContact

@@ -137,7 +137,10 @@ class Elements:
     Attributes (Warp arrays): ``tets`` (T,) vec4i, ``dm_inv`` (T,) mat33,
     ``volume`` (T,) rest volume (0 for dead tets), ``mu``, ``lam``,
     ``density`` (T,), ``mass`` (N,) lumped mass, ``node_offsets`` (N + 1,)
-    and ``node_corners`` the CSR incidence.
+    and ``node_corners`` the CSR incidence. ``rigid_host`` (T,) bool marks
+    the tets of rigid materials (:meth:`set_rigid`): their ``mu`` and ``lam``
+    are zero on the device, so they add mass but no elastic force or
+    stiffness (their nodes move as rigid bodies, :mod:`warpblob.sim._rigid`).
     """
 
     def __init__(self, rest, tets, alive, young, poisson, density, *, device, threads=None):
@@ -151,6 +154,7 @@ class Elements:
         self.density_host = np.asarray(density, dtype=np.float64)
         self.dm_inv = wp.zeros(0, dtype=wp.mat33, device=device)
         self.volume = wp.zeros(0, dtype=float, device=device)
+        self.rigid_host = np.zeros(self.tet_count, dtype=bool)
         ids = np.arange(self.tet_count, dtype=np.int32)
         check_tets(self.rest_host, self.tets_host, self.alive_host, ids)
         self._rebuild(ids)
@@ -250,16 +254,35 @@ class Elements:
         check_tets(rest_h, tets_h, alive_h, ids)
         self.rest_host, self.tets_host, self.alive_host = rest_h, tets_h, alive_h
         self.young_host, self.poisson_host, self.density_host = mats["young"], mats["poisson"], mats["density"]
+        self.rigid_host = grow(self.rigid_host, False)
         self._rebuild(ids.astype(np.int32))
+
+    def set_rigid(self, mask) -> None:
+        """Mark the (T,) bool ``mask`` of tets as rigid: zero Lamé parameters on the device (mass unchanged)."""
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (self.tet_count,):
+            raise SimulationError(f"set_rigid: the mask must have shape ({self.tet_count},), got {mask.shape}")
+        self.rigid_host = mask.copy()
+        self._lame()
+
+    def _lame(self) -> None:
+        mu, lam = lame(self.young_host, self.poisson_host)
+        mu[self.rigid_host] = 0.0
+        lam[self.rigid_host] = 0.0
+        if getattr(self, "mu", None) is not None and self.mu.shape[0] == self.tet_count:
+            # in place: the solver's recorded launches hold these arrays
+            self.mu.assign(mu.astype(np.float32))
+            self.lam.assign(lam.astype(np.float32))
+        else:
+            self.mu = wp.array(mu.astype(np.float32), dtype=float, device=self.device)
+            self.lam = wp.array(lam.astype(np.float32), dtype=float, device=self.device)
 
     def _rebuild(self, ids: np.ndarray) -> None:
         dev, T, N = self.device, self.tet_count, self.node_count
         self.rest = wp.array(self.rest_host, dtype=wp.vec3, device=dev)
         self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev)
         alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
-        mu, lam = lame(self.young_host, self.poisson_host)
-        self.mu = wp.array(mu.astype(np.float32), dtype=float, device=dev)
-        self.lam = wp.array(lam.astype(np.float32), dtype=float, device=dev)
+        self._lame()
         self.density = wp.array(self.density_host.astype(np.float32), dtype=float, device=dev)
         dm_inv = wp.zeros(T, dtype=wp.mat33, device=dev)
         volume = wp.zeros(T, dtype=float, device=dev)

@@ -34,12 +34,17 @@ from __future__ import annotations
 
 import warp as wp
 
-#: node flags: a free node, a Dirichlet node, a node no live tet uses (no mass: it stays put)
+#: node flags: a free node, a Dirichlet node, a node no live tet uses (no mass: it stays put), a node of a free
+#: rigid body (:mod:`warpblob.sim._rigid`: its rows are projected onto the body's rigid velocities)
 FREE = 0
 FIXED = 1
 INACTIVE = 2
+RIGID = 3
 
 _FREE = wp.constant(wp.uint8(FREE))
+#: relative height above the ground plane within which a node counts as lying on it (float32 landings
+#: put a node on the plane to about 1e-7 relative)
+GROUND_TOLERANCE = wp.constant(1e-5)
 
 
 @wp.func
@@ -236,16 +241,28 @@ def assemble_system_kernel(
     guess: wp.array(dtype=wp.vec3),
     prescribed: wp.array(dtype=wp.vec3),
     axes: wp.array(dtype=wp.vec3),
+    coarse_axes: wp.array(dtype=wp.vec3),
     inverse_block: wp.array(dtype=wp.mat33),
 ):
     """The filtered system of a step, per node: free axes, prescribed velocities, right-hand side, warm start
     and block-Jacobi inverse.
 
+    A node of a free rigid body (``RIGID``) gets the free node's ``b`` and
+    warm start without the ground (its body handles contact), all axes in
+    ``axes`` and none in ``coarse_axes`` (the coarse space leaves it out),
+    and a zero block-Jacobi inverse: the body's rows are projected and
+    preconditioned per body (:mod:`warpblob.sim._rigid`). Everywhere else
+    ``coarse_axes`` equals ``axes``.
+
     A free node has ``b = M v + h (f + M g + f_ext)``. A fixed node has no free
     axis and the velocity ``(target - x) / h`` that lands it on its target.
     Ground contact, with the node's own predicted velocity
     ``v* = v + h (f + M g + f_ext) / m``: a node whose predicted position is
-    below the plane is in contact; its z velocity is constrained to
+    below the plane is in contact when it lies on the plane (within
+    :data:`GROUND_TOLERANCE`) or when its prediction without the elastic
+    force ``f`` falls below it too (on a light node of a pre-stressed body
+    just cut, ``f`` is large and balanced in the solve: it must not bring the
+    node down from above the plane); its z velocity is constrained to
     ``v_c = (height - z) / h``, which puts it on the plane, and the ground
     thereby removes ``dv_n = v_c - v*_z`` of normal velocity. Coulomb
     friction: when the predicted tangential speed is at most
@@ -266,6 +283,19 @@ def assemble_system_kernel(
     i = wp.tid() + offset
     flag = flags[i]
     one = wp.identity(n=3, dtype=float)
+    if flag == wp.uint8(RIGID):
+        m = mass[i]
+        force = node_force[i] + m * gravity + external[i]
+        if c_contact != 0.0:
+            if contact_weight[i] > 0.0:
+                force = force + contact_force[i]
+        rhs[i] = m * v[i] + h * force
+        guess[i] = v[i]
+        prescribed[i] = wp.vec3()
+        axes[i] = wp.vec3(1.0, 1.0, 1.0)
+        coarse_axes[i] = wp.vec3()
+        inverse_block[i] = wp.mat33()
+        return
     if flag != _FREE:
         vp = wp.vec3()
         if flag == wp.uint8(FIXED):
@@ -274,6 +304,7 @@ def assemble_system_kernel(
         guess[i] = vp
         prescribed[i] = vp
         axes[i] = wp.vec3()
+        coarse_axes[i] = wp.vec3()
         inverse_block[i] = one
         return
     m = mass[i]
@@ -286,9 +317,15 @@ def assemble_system_kernel(
     vp = wp.vec3()
     if ground != 0:
         predicted = v[i] + (h / m) * force
-        if x[i][2] + h * predicted[2] < height:
+        # a node comes into contact when it falls onto the plane (its prediction without the elastic force)
+        # or, lying on it, is pressed into it (with the elastic force: the load of the body above it). The
+        # elastic force alone does not bring a node down from above the plane: on a light node of a
+        # pre-stressed body just cut (a split point, a tiny mass) it is large, and is balanced in the solve
+        falling = v[i] + (h / m) * (force - node_force[i])
+        lying = x[i][2] <= height + GROUND_TOLERANCE * (1.0 + wp.abs(height))
+        if x[i][2] + h * falling[2] < height or (lying and x[i][2] + h * predicted[2] < height):
             vc = (height - x[i][2]) / h
-            dvn = vc - predicted[2]
+            dvn = wp.max(vc - predicted[2], 0.0)
             vp = wp.vec3(0.0, 0.0, vc)
             tangent = wp.vec3(predicted[0], predicted[1], 0.0)
             speed = wp.length(tangent)
@@ -302,6 +339,7 @@ def assemble_system_kernel(
     guess[i] = wp.cw_mul(s, v[i]) + vp
     prescribed[i] = vp
     axes[i] = s
+    coarse_axes[i] = s
     constrained = wp.diag(wp.vec3(1.0, 1.0, 1.0) - s)
     D = c_mass * m * one + c_stiff * node_block[i]
     if touched:
@@ -641,6 +679,10 @@ def advance_nodes_kernel(
     if flag == wp.uint8(INACTIVE):
         v[i] = wp.vec3()
         x_new[i] = x[i]
+        moved[i] = wp.vec3()
+        return
+    if flag == wp.uint8(RIGID):
+        # placed by its body's pose (:meth:`warpblob.sim._rigid.RigidBodies.advance`)
         moved[i] = wp.vec3()
         return
     xi = x[i]

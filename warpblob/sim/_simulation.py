@@ -28,6 +28,12 @@ the plane.
 Tools (:meth:`Simulation.add_tool`): rigid tools on paths press the tissue
 through the model's field carried by the deformation, a penalty inside the
 implicit solve (:mod:`warpblob.sim._contact`, after the thesis' chapter 6).
+
+Rigid materials (``rigid={material_id, ...}``): the nodes of rigid tets move
+as one rigid body per connected piece, anchored (held in place) when the
+piece holds a fixed node or an anchor, else free and integrated with the
+soft tissue in the same implicit solve, in reduced coordinates
+(:mod:`warpblob.sim._rigid`).
 """
 
 from __future__ import annotations
@@ -41,10 +47,12 @@ from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
 from ..mesh import TetMesh, TetStructure
+from ..mesh._structure import _connected
 from . import _kernels as k
-from ._contact import Contact, ToolContact, highlight
+from ._contact import Contact, ToolContact
 from ._elements import Elements, material_values
 from ._embed import Embedding, embed, interpolate
+from ._rigid import RigidBodies
 from ._solver import (
     LINEAR_SOLVERS,
     NODE_GRAIN,
@@ -131,6 +139,22 @@ class Simulation:
             from, for tool contact through its field and :meth:`field` (a
             :class:`~warpblob.mesh.TetMesh` does not keep it); or give it to
             :meth:`add_tool`.
+        rigid: a set of material ids (``volume.material``) whose tets are
+            rigid (:attr:`rigid`): the nodes of their tets (nodes shared with
+            soft tets included) move as one rigid body per connected piece.
+            A piece holding a fixed node or an anchor stays where it is (its
+            other nodes are held in place even if :attr:`fixed_positions`
+            moves its fixed ones); any other piece is a free rigid body under gravity, the ground, the
+            external forces and the soft tets attached to it, integrated in
+            one implicit solve with them (:mod:`warpblob.sim._rigid`).
+            Rigid tets give mass but no elastic force (their ``young`` and
+            ``poisson`` are still validated, and used again if the material
+            is made soft).
+        anchors: nodes that anchor the rigid piece holding them, a (N,) bool
+            mask or node indices (:attr:`anchors`); unlike fixed nodes they
+            are not copied by cuts: after a cut, a piece that holds none of
+            them (nor a fixed node) is free. Anchor a skull at nodes away
+            from where it will be drilled.
 
     Attributes:
         time: simulated time (s), advanced by :meth:`step`.
@@ -151,12 +175,16 @@ class Simulation:
             of tool contact by stage (``locate``: tool poses, boxes, BVH refit,
             location and the nearest-node search; ``field``: the field evaluation; ``spread``:
             forces, the sort by node and the k-ring spread), their
-            ``seconds_total``, ``samples`` and ``penetrating`` (sample counts).
+            ``seconds_total``, ``samples`` and ``penetrating`` (sample counts);
+            ``rigid``: the rigid pieces, ``{"pieces", "anchored", "free",
+            "tets", "nodes", "free_nodes"}`` (counts; the free bodies' poses
+            are :attr:`rigid_bodies`).
 
     Raises:
         SimulationError: a bad parameter, a NaN in the mesh or the inputs, a
             fixed mask of the wrong length or a bad node index, an inverted or
-            zero-volume rest tet; the message names the value and the tet or node.
+            zero-volume rest tet, a ``rigid`` that is not a set of material
+            ids of the mesh; the message names the value and the tet or node.
 
     Example:
         >>> import numpy as np, warpblob as wb
@@ -186,6 +214,8 @@ class Simulation:
         device=None,
         threads: int | None = None,
         model=None,
+        rigid=None,
+        anchors=None,
     ):
         self.threads = check_threads(threads)
         if linear_solver not in LINEAR_SOLVERS:
@@ -217,6 +247,7 @@ class Simulation:
             if bad.size:
                 raise SimulationError(f"node {bad[0]} has {name} {arr[bad[0]].tolist()}, which is not finite")
         material = np.asarray(material)
+        self._material = np.asarray(material, dtype=np.int32).copy()
         self._specs = {"young": young, "poisson": poisson, "density": density}
         E = material_values("young", young, material, positive=True)
         nu = material_values("poisson", poisson, material, bounds=(-1.0, 0.5))
@@ -234,6 +265,11 @@ class Simulation:
         self.max_iterations = int(max_iterations)
         self.elements = Elements(rest, tets, alive, E, nu, rho, device=self.device, threads=self.threads)
         self._allocate(positions, np.zeros_like(positions))
+        self._rigid_ids = self._check_rigid(rigid)
+        self._anchor_mask = self._node_mask("anchors", anchors)
+        self._rigid_fixed = np.zeros(self.node_count, dtype=bool)
+        self._bodies: RigidBodies | None = None
+        self._rigid_stats = {"pieces": 0, "anchored": 0, "free": 0, "tets": 0, "nodes": 0, "free_nodes": 0}
         self.fixed = fixed
         self.time = 0.0
         self._embedding: Embedding | None = None
@@ -251,6 +287,7 @@ class Simulation:
             "tet_count": self.tet_count,
             "node_count": self.node_count,
             "device": str(self.device),
+            "rigid": dict(self._rigid_stats),
             **self._coarse_stats(),
         }
 
@@ -309,10 +346,146 @@ class Simulation:
         }
 
     def _update_flags(self) -> None:
-        flags = np.where(self._fixed_mask, k.FIXED, np.where(self._mass > 0, k.FREE, k.INACTIVE)).astype(np.uint8)
-        self._flags.assign(flags)
+        rigid_free = self._rigid_pieces()
+        fixed = self._fixed_mask | self._rigid_fixed
+        flags = np.where(fixed, k.FIXED, np.where(rigid_free, k.RIGID, np.where(self._mass > 0, k.FREE, k.INACTIVE)))
+        self._flags.assign(flags.astype(np.uint8))
+        self._solver.set_rigid(self._bodies)
         self._solver.invalidate()
         self._refresh()
+
+    # -- rigid materials -------------------------------------------------------
+
+    def _check_rigid(self, value) -> frozenset:
+        """The validated set of rigid material ids (SimulationError naming the value)."""
+        if value is None:
+            return frozenset()
+        if not isinstance(value, (set, frozenset, list, tuple)):
+            raise SimulationError(f"rigid must be a set of material ids (ints), got {value!r}")
+        ids = set()
+        for m in value:
+            if isinstance(m, (bool, np.bool_)) or not isinstance(m, (int, np.integer)):
+                raise SimulationError(f"rigid: material id {m!r} is not an int (rigid={value!r})")
+            ids.add(int(m))
+        present = set(np.unique(self._material).tolist())
+        unknown = sorted(ids - present)
+        if unknown:
+            raise SimulationError(f"rigid: material {unknown[0]} is not in the mesh (rigid={value!r}; the mesh has "
+                                  f"materials {sorted(present)})")  # fmt: skip
+        return frozenset(ids)
+
+    def _node_mask(self, name: str, value) -> np.ndarray:
+        """A (N,) bool mask from a mask, node indices or None (SimulationError naming the value)."""
+        N = self.node_count
+        mask = np.zeros(N, dtype=bool)
+        if value is None:
+            return mask
+        arr = np.asarray(value)
+        if arr.dtype == bool:
+            if arr.shape != (N,):
+                raise SimulationError(f"{name}: a mask must have shape ({N},) (one flag per node), got {arr.shape}")
+            return arr.copy()
+        if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+            raise SimulationError(f"{name} must be a ({N},) bool mask or 1-D node indices, got {value!r}")
+        bad = np.flatnonzero((arr < 0) | (arr >= N))
+        if bad.size:
+            raise SimulationError(f"{name}: node index {arr[bad[0]]} is outside [0, {N})")
+        mask[arr] = True
+        return mask
+
+    @property
+    def rigid(self) -> frozenset:
+        """The rigid material ids (a frozenset of ints; empty: all soft). Set a set of ids (or None).
+
+        The rigid pieces are recomputed whenever this, :attr:`fixed`, :attr:`anchors`,
+        the state or the topology (:meth:`rebuild`) changes; a free piece starts
+        with the rigid velocity of its nodes' linear and angular momentum.
+
+        Example:
+            >>> import numpy as np, warpblob as wb
+            >>> from warpblob.mesh import TetMesh, box_tetmesh
+            >>> m = box_tetmesh((0, 0, 0), (0.1, 0.1, 0.1), (1, 1, 1))
+            >>> sim = wb.Simulation(TetMesh(m.nodes, m.tets, material=np.ones(6, np.int32)), young=1e5,
+            ...                     poisson=0.3, density=1000.0, rigid={1})
+            >>> sim.step(3)
+            >>> round(float(sim.rigid_bodies["velocity"][0, 2]), 4)  # backward Euler: -3 h g, m/s
+            -0.4905
+            >>> sim.rigid, sim.stats["rigid"]["free"]
+            (frozenset({1}), 1)
+        """
+        return self._rigid_ids
+
+    @rigid.setter
+    def rigid(self, value) -> None:
+        self._rigid_ids = self._check_rigid(value)
+        self._update_flags()
+
+    @property
+    def anchors(self) -> np.ndarray:
+        """Sorted (A,) int indices of the anchor nodes. Set a (N,) bool mask, node indices or None."""
+        return np.flatnonzero(self._anchor_mask)
+
+    @anchors.setter
+    def anchors(self, value) -> None:
+        self._anchor_mask = self._node_mask("anchors", value)
+        self._update_flags()
+
+    @property
+    def rigid_bodies(self) -> dict:
+        """The free rigid bodies now: ``centre`` (F, 3) centres of mass, ``orientation`` (F, 4) unit
+        quaternions (x, y, z, w) from the pose when the piece was formed, ``velocity`` and
+        ``angular_velocity`` (F, 3) of the last step, ``nodes`` (list of F node index arrays)."""
+        if self._bodies is None:
+            z = np.zeros((0, 3), dtype=np.float32)
+            return {"centre": z, "orientation": np.zeros((0, 4), np.float32), "velocity": z,
+                    "angular_velocity": z, "nodes": []}  # fmt: skip
+        return self._bodies.state()
+
+    def _rigid_pieces(self) -> np.ndarray:
+        """Recompute the rigid pieces: the rigid tets' Lamé parameters, the anchored nodes (held where they
+        are), the free bodies (:class:`~warpblob.sim._rigid.RigidBodies`, their nodes given the rigid
+        velocity of their momentum). Returns the (N,) mask of the free bodies' nodes."""
+        e, N = self.elements, self.node_count
+        rigid_tets = np.zeros(e.tet_count, dtype=bool)
+        if self._rigid_ids:
+            rigid_tets = e.alive_host & np.isin(self._material, np.fromiter(self._rigid_ids, dtype=np.int64))
+        if not np.array_equal(rigid_tets, e.rigid_host):
+            e.set_rigid(rigid_tets)
+        self._bodies = None
+        self._rigid_fixed = np.zeros(N, dtype=bool)
+        free = np.zeros(N, dtype=bool)
+        stats = {"pieces": 0, "anchored": 0, "free": 0, "tets": int(rigid_tets.sum()), "nodes": 0, "free_nodes": 0}
+        if rigid_tets.any():
+            sub = e.tets_host[rigid_tets].astype(np.int64)
+            nodes = np.zeros(N, dtype=bool)
+            nodes[sub.ravel()] = True
+            label = _connected(N, np.repeat(sub[:, 0], 3), sub[:, 1:].ravel(), nodes)
+            count = int(label.max()) + 1
+            anchored = np.zeros(count, dtype=bool)
+            anchored[label[nodes & (self._fixed_mask | self._anchor_mask)]] = True
+            self._rigid_fixed = nodes & anchored[np.maximum(label, 0)]
+            free = nodes & ~self._rigid_fixed
+            x = self._x[self._cur].numpy()
+            held = self._rigid_fixed & ~self._fixed_mask
+            if held.any():
+                # anchored nodes are held where they are: their targets are their positions
+                target = self._target.numpy().copy()
+                target[held] = x[held]
+                self._target.assign(target)
+            if free.any():
+                ids = np.flatnonzero(free)
+                order = ids[np.argsort(label[ids], kind="stable")]
+                cuts = np.flatnonzero(np.diff(label[order])) + 1
+                v = self._v[self._cur].numpy().copy()
+                self._bodies = RigidBodies(np.split(order, cuts), x, v, self._mass, self.device)
+                v[self._bodies.nodes_host] = self._bodies.rigid_velocities
+                self._v[self._cur].assign(v.astype(np.float32))
+            stats.update(pieces=count, anchored=int(anchored.sum()), free=count - int(anchored.sum()),
+                         nodes=int(nodes.sum()), free_nodes=int(free.sum()))  # fmt: skip
+        self._rigid_stats = stats
+        if hasattr(self, "stats"):
+            self.stats["rigid"] = dict(stats)
+        return free
 
     def _refresh(self) -> None:
         """Recompute the element pass at the current positions (after the caller changed the state)."""
@@ -368,19 +541,23 @@ class Simulation:
         target[self._fixed_mask] = arr[self._fixed_mask]
         self._target.assign(target)
         self._moving = False
-        # the body may have moved far (a teleport, a turn): the coarse modes follow at the next step
-        self._solver.invalidate()
-        self._refresh()
+        # the body may have moved far (a teleport, a turn): the coarse modes follow at the next step; the
+        # rigid bodies are formed again at the new positions
+        self._update_flags()
 
     @property
     def velocities(self) -> np.ndarray:
-        """(N, 3) float32 current node velocities (a copy); settable."""
+        """(N, 3) float32 current node velocities (a copy); settable (the nodes of a free rigid body then take
+        the rigid velocity with the same linear and angular momentum)."""
         return self._v[self._cur].numpy().copy()
 
     @velocities.setter
     def velocities(self, value) -> None:
         self._v[self._cur].assign(self._nodal("velocities", value))
-        self._refresh()
+        if self._bodies is not None:
+            self._update_flags()  # the free bodies take the rigid velocity of the new momentum
+        else:
+            self._refresh()
 
     @property
     def external_forces(self) -> np.ndarray:
@@ -403,21 +580,7 @@ class Simulation:
 
     @fixed.setter
     def fixed(self, value) -> None:
-        N = self.node_count
-        mask = np.zeros(N, dtype=bool)
-        if value is not None:
-            arr = np.asarray(value)
-            if arr.dtype == bool:
-                if arr.shape != (N,):
-                    raise SimulationError(f"fixed: a mask must have shape ({N},) (one flag per node), got {arr.shape}")
-                mask = arr.copy()
-            else:
-                if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
-                    raise SimulationError(f"fixed must be a ({N},) bool mask or 1-D node indices, got {value!r}")
-                bad = np.flatnonzero((arr < 0) | (arr >= N))
-                if bad.size:
-                    raise SimulationError(f"fixed: node index {arr[bad[0]]} is outside [0, {N})")
-                mask[arr] = True
+        mask = self._node_mask("fixed", value)
         newly = mask & ~self._fixed_mask
         if newly.any():
             target = self._target.numpy().copy()
@@ -478,7 +641,7 @@ class Simulation:
         out = wp.zeros_like(arr)
         free = (self._flags.numpy() == k.FREE).astype(np.float32)
         self._solver.axes.assign(np.repeat(free[:, None], 3, axis=1))
-        self._solver.multiply(self._state, arr, out, float(mass), float(stiffness))
+        self._solver.multiply(self._state, arr, out, float(mass), float(stiffness), rigid=False)
         return out.numpy().copy()
 
     # -- time stepping ---------------------------------------------------------
@@ -556,11 +719,20 @@ class Simulation:
                      [x0, self._flags, self._target, self._solver.axes, float(h), int(self.ground is not None),
                       ground[0]],
                      [v1, x1, self._moved], dev, th, NODE_GRAIN)  # fmt: skip
+        bodies = self._bodies
+        if bodies is not None:
+            bodies.save()
+            bodies.advance(x0, x1, v1, self._moved, h, self.ground)
         t3 = self._sync()
         new_state.compute(e, x1, th)
         t4 = self._sync()
         # host sync: the divergence check reads the new state
-        energy = self._check(x0, x1, v1, new_state, touching)
+        try:
+            energy = self._check(x0, x1, v1, new_state, touching)
+        except SimulationError:
+            if bodies is not None:
+                bodies.restore()
+            raise
         if touching:
             self._contact.finish(v1, h)
         t5 = time.perf_counter()
@@ -644,10 +816,14 @@ class Simulation:
         Raises:
             SimulationError: no fixed node, or a non-finite result.
         """
-        if not self._fixed_mask.any():
+        held = self._fixed_mask | self._rigid_fixed
+        if not held.any():
             raise SimulationError("solve_static needs fixed nodes (an unconstrained body has no static equilibrium)")
         e, dev, th = self.elements, self.device, self.threads
-        free = (self._mass > 0) & ~self._fixed_mask
+        free = (self._mass > 0) & ~held
+        body = np.zeros(len(free), dtype=bool)
+        if self._bodies is not None:
+            body[self._bodies.nodes_host] = True
         load = self._mass[:, None] * np.asarray(self.gravity)[None, :] + self._external.numpy()
         scale = float(np.linalg.norm(load[free]))
         start = self.positions.astype(np.float64)
@@ -665,6 +841,8 @@ class Simulation:
             split_launch(k.advance_nodes_kernel, e.node_count,
                          [x0, self._flags, self._target, self._solver.axes, 1.0, 0, 0.0],
                          [dx, x1, self._moved], dev, th, NODE_GRAIN)  # fmt: skip
+            if self._bodies is not None:
+                self._bodies.advance(x0, x1, dx, self._moved, 1.0)
             self._states[1 - cur].compute(e, x1, th)
             self._cur = 1 - cur
             # host sync: the update and the imbalance decide the next iteration
@@ -672,8 +850,17 @@ class Simulation:
             moved = np.abs(self._x[self._cur].numpy() - start).max(initial=0.0)
             imbalance = self._state.node_force.numpy().astype(np.float64) + load
             # relative to the load, or to the reactions of the fixed nodes when they alone load the body
-            reaction = float(np.linalg.norm(imbalance[self._fixed_mask]))
-            residual = float(np.linalg.norm(imbalance[free])) / max(scale, reaction, 1e-30)
+            reaction = float(np.linalg.norm(imbalance[held]))
+            residual = float(np.linalg.norm(imbalance[free & ~body])) / max(scale, reaction, 1e-30)
+            if self._bodies is not None:
+                # a rigid body balances as a whole: its net force, and its net torque over its size
+                x = self._x[self._cur].numpy().astype(np.float64)
+                for nodes in self._bodies.state()["nodes"]:
+                    r = x[nodes] - x[nodes].mean(axis=0)
+                    size = max(float(np.sqrt((r**2).sum(axis=1).max())), 1e-30)
+                    f = imbalance[nodes]
+                    net = np.concatenate([f.sum(axis=0), np.cross(r, f).sum(axis=0) / size])
+                    residual = float(np.hypot(residual, np.linalg.norm(net) / max(scale, reaction, 1e-30)))
             update = float(step / max(moved, 1e-30))
             if not (np.isfinite(residual) and np.isfinite(update)):
                 raise SimulationError(f"solve_static diverged at iteration {iterations}")
@@ -686,16 +873,20 @@ class Simulation:
 
     def record(self, path, steps: int, *, every: int = 1, progress: bool | None = None,
                meters_per_unit: float | None = None, on_frame=None):  # fmt: skip
-        """Step ``steps`` times and write the motion as a time-sampled USD stage: the tet mesh and the bound surface.
+        """Step ``steps`` times and write the motion as a time-sampled USD stage (:class:`warpblob.usd.Recorder`).
 
-        The stage (``/Simulation/Volume``, a ``UsdGeom.TetMesh``, and
-        ``/Simulation/Surface`` when a surface is bound) holds the current
-        state at time code 0 and one frame per ``every`` steps after it, at
-        ``1 / (every dt)`` time codes per second (it plays in real time). The
-        file is written once, atomically, at the end. With tools, each is an
-        Xform at ``/Simulation/Tools/Tool<k>`` with its pose sampled per frame
-        (:mod:`warpblob.io._anim_tools`), and the surface's display colour is
-        sampled too, the contact area highlighted (:meth:`surface_contact`).
+        The stage's root is ``/Simulation``: ``/Simulation/Volume``, a
+        ``UsdGeom.TetMesh`` whose topology is re-sampled on the frames a cut
+        changed it; the surface, ``/Simulation/Surface`` for a bound surface
+        (its display colour sampled per frame with tools, the contact area
+        highlighted: :meth:`surface_contact`) or, on a
+        :class:`~warpblob.mesh.TetStructure`, one prim per separated piece
+        under ``/Simulation/Pieces``; tools and cutters at
+        ``/Simulation/Tools/Tool<k>``, their poses sampled per frame. It holds
+        the current state at time code 0 and one frame per ``every`` steps
+        after it, at ``1 / (every dt)`` time codes per second (it plays in real
+        time). ``.usdc`` and ``.usd`` files stream to disk as frames come;
+        the file appears, atomically, at the end.
 
         Args:
             path: ``.usda`` / ``.usdc`` / ``.usd`` file; its directory must exist.
@@ -712,37 +903,29 @@ class Simulation:
 
         Raises:
             SimulationError: bad ``steps`` or ``every``, or a diverged step (nothing is written).
-            WarpblobError: a bad path suffix.
-            OSError: the directory does not exist or USD could not write.
+            WarpblobError: a bad path suffix or a missing directory.
+            OSError: USD could not write.
         """
         from .._progress import progress as bar
-        from ..io._anim_tools import ToolAnimationWriter
+        from ..io._recorder import Recorder
 
         for name, value in (("steps", steps), ("every", every)):
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise SimulationError(f"record: {name} must be a positive integer, got {value!r}")
-        live = self.elements.tets_host[self.elements.alive_host]
-        faces = TetMesh(self.elements.rest_host, live).surface_faces() if len(live) else np.zeros((0, 3), np.int32)
-        surface = self._embedding.mesh if self._embedding is not None else None
-        writer = ToolAnimationWriter(path, live, faces, surface, tools=[r.tool for r in self.tools],
-                                     fps=1.0 / (self.dt * every),
-                                     meters_per_unit=1.0 if meters_per_unit is None else float(meters_per_unit))  # fmt: skip
-        shade = surface is not None and bool(self.tools)
-
-        def frame():
-            colors = highlight(surface.colors, self.surface_contact()) if shade else None
-            writer.add(self.positions, None if surface is None else self.surface_positions(),
-                       poses=[r.pose(self.time) for r in self.tools], surface_colors=colors)  # fmt: skip
+        mpu = 1.0 if meters_per_unit is None else float(meters_per_unit)
+        with Recorder(path, fps=1.0 / (self.dt * every), meters_per_unit=mpu, root="Simulation") as rec:
+            rec.add(self, prim_path="/Simulation")
+            rec.frame()
             if on_frame is not None:
-                on_frame(writer.frame_count - 1)
-
-        frame()
-        show = progress if progress is not None else steps >= 100
-        for i in bar(range(steps), desc="simulate", total=steps) if show else range(steps):
-            self.step()
-            if (i + 1) % every == 0:
-                frame()
-        return writer.save()
+                on_frame(0)
+            show = progress if progress is not None else steps >= 100
+            for i in bar(range(steps), desc="simulate", total=steps) if show else range(steps):
+                self.step()
+                if (i + 1) % every == 0:
+                    rec.frame()
+                    if on_frame is not None:
+                        on_frame(rec.frame_count - 1)
+        return rec.path
 
     # -- topology changes ------------------------------------------------------
 
@@ -763,12 +946,21 @@ class Simulation:
         with the element data, the two-level preconditioner's aggregates and
         coarse matrix included (their set-up is in :attr:`stats`).
 
+        Material ids: on a TetStructure they are re-read (a cut's new tets keep
+        their parent's); on a TetMesh give ``material=`` ((K,) ints for the
+        slots, default: unchanged, new slots 0). The rigid pieces
+        (:attr:`rigid`) are then recomputed: a rigid piece a cut separated
+        from the one holding the anchors or fixed nodes becomes a free rigid
+        body, with the momentum of its nodes (new nodes are not anchors).
+
         Raises:
             SimulationError: as :meth:`Elements.rebuild`.
         """
         e = self.elements
+        material_new = changes.pop("material", None)
         if self._structure is not None and "tets" not in changes:
             s = self._structure
+            material_new = None
             ids = np.arange(len(s.cell_nodes)) if tet_ids is None else np.asarray(tet_ids, dtype=np.int64)
             read = {"tets": np.asarray(s.cell_nodes)[ids], "alive": np.asarray(s.cell_alive, dtype=bool)[ids],
                     "rest": np.asarray(s.node_rest)}  # fmt: skip
@@ -787,8 +979,21 @@ class Simulation:
         old_n = e.node_count
         x, v = self.positions, self.velocities
         target, external, mask = self._target.numpy(), self._external.numpy(), self._fixed_mask
+        if material_new is not None:
+            values = np.asarray(material_new)
+            slots = np.arange(e.tet_count) if tet_ids is None else np.asarray(tet_ids).ravel()
+            if values.shape != slots.shape or (values.size and not np.issubdtype(values.dtype, np.integer)):
+                raise SimulationError(f"rebuild: material must be ({len(slots)},) ints, got {material_new!r}")
+        old_t = e.tet_count
         e.rebuild(tet_ids, **changes)
         grow = e.node_count - old_n
+        if self._structure is not None:
+            self._material = np.asarray(self._structure.cell_material, dtype=np.int32)[: e.tet_count].copy()
+        else:
+            material = np.concatenate([self._material, np.zeros(e.tet_count - old_t, dtype=np.int32)])
+            if material_new is not None:
+                material[slots.astype(np.int64)] = values
+            self._material = material
         added = e.rest_host[old_n:]
         if self._structure is not None:
             added = np.asarray(self._structure.node_position, dtype=np.float32)[old_n : e.node_count]
@@ -802,6 +1007,7 @@ class Simulation:
         self._target.assign(pad(target, added))
         self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))
         self._fixed_mask = pad(mask, fnew)
+        self._anchor_mask = pad(self._anchor_mask, np.zeros(grow, dtype=bool))
         self._update_flags()
         self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count
         if self._embedding is not None:
@@ -874,7 +1080,7 @@ class Simulation:
 
     def add_tool(self, tool, path, *, stiffness: float | None = None, kring: int = 2, contact: str = "field",
                  model=None, spacing: float | None = None, cut: bool = False, mode: str = "on_release",
-                 snap: float = 0.2):  # fmt: skip
+                 snap: float = 0.2, materials=None):  # fmt: skip
         """Add a rigid tool on a path: each :meth:`step` moves it to ``path.pose(t + dt)`` and applies its contact.
 
         With ``cut=True`` a :class:`~warpblob.tools.Scalpel` or
@@ -911,6 +1117,8 @@ class Simulation:
             cut: the tool cuts (see above).
             mode: "progressive" or "on_release" (cutting tools).
             snap: the cut's snapping fraction (:func:`warpblob.cut.cut`), in [0, 0.5).
+            materials: a cutting tool cuts only tets of these material ids
+                (:func:`warpblob.cut.cut`; default: every tet).
 
         Returns:
             The :class:`~warpblob.sim._contact.ToolContact` record (its index
@@ -945,7 +1153,7 @@ class Simulation:
             if self._structure is None:
                 raise SimulationError("add_tool(cut=True): cutting edits the mesh; build the simulation on a "
                                       "TetStructure (wb.TetStructure.from_tetmesh(mesh))")  # fmt: skip
-            cutter = Cutter(tool, path, mode=mode, snap=snap)
+            cutter = Cutter(tool, path, mode=mode, snap=snap, materials=materials)
             self._cutters.append(cutter)
             if stiffness is None:
                 return cutter

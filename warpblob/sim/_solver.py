@@ -23,6 +23,13 @@ Dirichlet nodes enter by the projection filter of Baraff & Witkin: with
 ``S`` zeroing fixed rows, CG solves ``(S A S + I - S) v' = S (b - A v_p) + v_p``,
 whose fixed entries stay at their prescribed velocities ``v_p``.
 
+Free rigid bodies (:mod:`warpblob.sim._rigid`) generalize the filter: their
+rows are projected onto each body's six rigid velocities (``Pi A Pi`` and
+``Pi b`` instead of ``S A S`` and ``S b``, one projection of ``A p`` per CG
+iteration), which solves the reduced system ``P^T A P q = P^T b`` in the
+same CG, and they are preconditioned by one exact 6 x 6 block per body in
+place of block-Jacobi and the coarse space.
+
 Tool contact (:mod:`warpblob.sim._contact`) adds its force to ``f_ext`` and
 ``h^2`` times its block-diagonal penalty stiffness ``K_c`` to the system: the
 contact force at the end of the step is linearized as ``f_c - K_c h v'``, so
@@ -66,6 +73,7 @@ import warp as wp
 from .._parallel import launch, submit, thread_count
 from . import _kernels as k
 from ._coarse import COARSE_EVERY, CoarseSpace
+from ._rigid import norm_blocks_kernel
 
 __all__ = ["ElementState", "ImplicitSolver", "Prepared", "split_launch"]
 
@@ -211,6 +219,8 @@ class ImplicitSolver:
         self.rhs = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.prescribed = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.axes = wp.zeros(N, dtype=wp.vec3, device=dev)
+        # the coarse space's filter: ``axes`` with the rigid bodies' nodes left out (they have their own block)
+        self.coarse_axes = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.ones = wp.full(N, wp.vec3(1.0, 1.0, 1.0), dtype=wp.vec3, device=dev)
         self.inverse_block = wp.zeros(N, dtype=wp.mat33, device=dev)
         self.corner_out = wp.zeros(4 * T, dtype=wp.vec3, device=dev)
@@ -246,7 +256,8 @@ class ImplicitSolver:
                            for parity in (0, 1)]  # fmt: skip
         self._coefficients = None
         self._grain = grain
-        self.coarse = CoarseSpace(e, self.axes, th) if preconditioner == "two_level" else None
+        self.coarse = CoarseSpace(e, self.coarse_axes, th) if preconditioner == "two_level" else None
+        self.rigid = None
         self._coarse_key, self._coarse_age = None, 0
         if self.coarse is not None:
             # the start's correction also sets p = z; an iteration's adds its r.z to the new row
@@ -263,12 +274,27 @@ class ImplicitSolver:
         c, N = self.coarse, self.elements.node_count
         return [
             (k.restrict_kernel, c.aggregate_count,
-             [c.aggregate_offsets, c.aggregate_nodes, self.axes, c.node_mode, r], [c.rc], 1 << 30),
+             [c.aggregate_offsets, c.aggregate_nodes, self.coarse_axes, c.node_mode, r], [c.rc], 1 << 30),
             (k.solve_coarse_kernel, 1, [c.lower, c.first, c.scale, c.rc], [c.work, c.zc], 1),
             (k.prolong_cg_kernel, self.partials.shape[1],
-             [c.node_aggregate, c.node_mode, self.axes, r, c.zc, float(scale), int(row), int(set_p), N],
+             [c.node_aggregate, c.node_mode, self.coarse_axes, r, c.zc, float(scale), int(row), int(set_p), N],
              [z, self.p, self.partials], self._grain),
         ]  # fmt: skip
+
+    def set_rigid(self, bodies) -> None:
+        """Solve with the free rigid bodies ``bodies`` (a :class:`~warpblob.sim._rigid.RigidBodies`, or None):
+        their rows filtered by the projector onto rigid velocities and preconditioned per body
+        (:mod:`warpblob.sim._rigid`); their nodes must carry the ``RIGID`` flag."""
+        self.rigid = bodies if bodies is not None and bodies.count else None
+        if self.rigid is None:
+            return
+        b, P = self.rigid, self.partials
+        self._rigid_ap = b.project_launches(self.Ap)
+        self._rigid_start = [*b.project_launches(self.r),
+                             wp.launch(norm_blocks_kernel, P.shape[1], inputs=[self.r, self.elements.node_count, 0, P],
+                                       device=self.elements.device, record_cmd=True),
+                             *b.precondition_launches(self.r, self.z, self.p, P, row=0, set_p=1)]  # fmt: skip
+        self._rigid_update = [b.precondition_launches(self.r, self.z, self.p, P, row=1 - parity) for parity in (0, 1)]
 
     def invalidate(self) -> None:
         """Rebuild the coarse matrix at the next :meth:`assemble` (the fixed nodes or the state changed)."""
@@ -285,6 +311,9 @@ class ImplicitSolver:
             # the prolongation's r.z partial lands in the solver's scratch row 0, unread here
             for kernel, dim, before, after, grain in self._correction(r, z, row=0, scale=alpha):
                 split_launch(kernel, dim, before, after, dev, self.threads, grain)
+        if self.rigid is not None:
+            for item in self.rigid.precondition_launches(r, z, z, self.partials, row=0, scale=alpha):
+                item.launch()
 
     def _set_coefficients(self, c_mass: float, c_stiff: float, c_contact: float) -> None:
         if self._coefficients != (c_mass, c_stiff, c_contact):
@@ -296,10 +325,11 @@ class ImplicitSolver:
 
     def multiply(self, state: ElementState, p: wp.array, out: wp.array, c_mass: float, c_stiff: float,
                  project: int = 1, alpha: float = 1.0, beta: float = 0.0, *, y: wp.array | None = None,
-                 c_contact: float = 0.0) -> None:  # fmt: skip
+                 c_contact: float = 0.0, rigid: bool = True) -> None:  # fmt: skip
         """``out = alpha A' p + beta y`` (``y`` defaults to ``out``) with ``A = c_mass M + c_stiff K' +
         c_contact K_c``: with ``project`` the filtered ``A' = S A S + I - S`` of the last :meth:`assemble`
-        (fixed rows identity), else ``A' = S A``."""
+        (fixed rows identity; with ``rigid`` and free rigid bodies, their rows projected onto rigid
+        velocities), else ``A' = S A``."""
         e, dev = self.elements, self.elements.device
         split_launch(k.multiply_elements_kernel, e.tet_count,
                      [p, e.tets, e.volume, e.mu, e.lam, state.rotated, self.axes if project else self.ones],
@@ -309,6 +339,9 @@ class ImplicitSolver:
                       out if y is None else y, float(c_mass), float(c_stiff), self.contact_weight, self.contact_block,
                       float(c_contact), float(alpha), float(beta), project],
                      [out], dev, self.threads, NODE_GRAIN)  # fmt: skip
+        if project and rigid and self.rigid is not None:
+            # the rigid rows of the filtered operator: Pi (alpha A p + beta y), y in the subspace as CG keeps it
+            self.rigid.project(out)
 
     def assemble(self, state, x, v, target, external, gravity, h, c_mass, c_stiff, guess, *, ground=None,
                  friction: float = 0.0, moving: bool = False, c_contact: float = 0.0) -> None:  # fmt: skip
@@ -327,11 +360,17 @@ class ImplicitSolver:
                       self.contact_force, self.contact_weight, self.contact_block, wp.vec3(*gravity), float(h),
                       float(c_mass), float(c_stiff), float(c_contact), int(ground is not None), float(ground or 0.0),
                       float(friction)],
-                     [self.rhs, guess, self.prescribed, self.axes, self.inverse_block], dev, self.threads,
-                     NODE_GRAIN)  # fmt: skip
+                     [self.rhs, guess, self.prescribed, self.axes, self.coarse_axes, self.inverse_block], dev,
+                     self.threads, NODE_GRAIN)  # fmt: skip
         if moving or ground is not None:
             self.multiply(state, self.prescribed, self.rhs, c_mass, c_stiff, project=0, alpha=-1.0, beta=1.0,
                           c_contact=c_contact)  # fmt: skip
+        if self.rigid is not None:
+            # the rigid rows: P^T b (momentum and impulses) and a warm start in the bodies' rigid velocities
+            self.rigid.prepare(e.mass, state.node_block, self.contact_weight, self.contact_block, c_mass, c_stiff,
+                               c_contact)  # fmt: skip
+            self.rigid.project(self.rhs)
+            self.rigid.project(guess)
         if self.coarse is not None:
             key = (float(c_mass), float(c_stiff))
             if key != self._coarse_key or self._coarse_age >= COARSE_EVERY or self.coarse.drifted():
@@ -363,10 +402,13 @@ class ImplicitSolver:
             return float(part[2].astype(np.float64).sum()), float(part[3].astype(np.float64).sum())
 
         coarse = self.coarse is not None
+        rigid = self.rigid is not None
         multiply["x"]()
         self._start()
         for launch_ in self._start_coarse if coarse else ():
             launch_()
+        for item in self._rigid_start if rigid else ():
+            item.launch()
         rr, bb = sums()
         limit = max(tolerance * np.sqrt(bb), atol) ** 2
         iterations = 0
@@ -374,6 +416,8 @@ class ImplicitSolver:
             parity = iterations & 1
             multiply["p"]()
             self._product()
+            for item in self._rigid_ap if rigid else ():
+                item.launch()
             self._update[parity]()
             iterations += 1
             if iterations % check_every == 0 or iterations == max_iterations:
@@ -382,6 +426,8 @@ class ImplicitSolver:
                     break
             for launch_ in self._update_coarse[parity] if coarse else ():
                 launch_()
+            for item in self._rigid_update[parity] if rigid else ():
+                item.launch()
             self._direction[parity]()
         rr, _ = sums()
         return iterations, float(np.sqrt(rr)), float(np.sqrt(bb))
