@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import CutError, SimulationError
-from ._cut import CutResult, cut
-from ._sweep import SweepSurface
+from ._cut import CutResult, _materials, cut
+from ._sweep import SweepSurface, cutting_edges
 
 __all__ = ["apply_cut", "Cutter", "CUT_MODES"]
 
@@ -82,60 +82,93 @@ class Cutter:
             :meth:`warpblob.Simulation.add_tool` for its limits).
         snap: the cut's snapping fraction (:func:`~warpblob.cut.cut`).
         samples: blade samples per step for the swept strip (>= 1).
+        materials: cut only tets of these material ids (:func:`~warpblob.cut.cut`; default: every tet).
 
     Attributes:
         results: every :class:`~warpblob.cut.CutResult`, in order.
     """
 
-    def __init__(self, tool, path, *, mode: str = "on_release", snap: float = 0.2, samples: int = 2):
+    def __init__(self, tool, path, *, mode: str = "on_release", snap: float = 0.2, samples: int = 2,
+                 materials=None):  # fmt: skip
         if mode not in CUT_MODES:
             raise CutError(f"cut mode must be one of {', '.join(CUT_MODES)}, got {mode!r}")
         if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
             raise CutError(f"samples must be a positive integer, got {samples!r}")
         self.tool, self.path, self.mode, self.snap, self.samples = tool, path, mode, float(snap), int(samples)
+        self.materials = None if materials is None else _materials(materials)
         self.results: list[CutResult] = []
         self._done = False
-        self._triangles: list[np.ndarray] = []  # the stroke so far, in the rest frame
+        # the stroke so far in the rest frame: rows of cutting-edge end points, (S, 3) each, one per sample
+        self._rows_a: list[np.ndarray] = []
+        self._rows_b: list[np.ndarray] = []
+        self._last = None  # time of the last sample taken (recorded or not)
         self._node_limit: int | None = None  # nodes before the stroke: only their edges are cut
 
     def step(self, sim, t0: float, t1: float) -> CutResult | None:
         """Cut for the blade's motion from ``t0`` to ``t1`` (seconds); the result, or None when nothing was cut.
 
-        The strip swept in ``[t0, t1]`` is carried back to the rest frame by
-        the displacement of the nearest node (so the tissue may move while
-        it is cut) and added to the stroke's rest-frame sweep, which is cut
-        (in the rest frame) at the path's end, or every step in progressive
-        mode.
+        The blade's cutting edges, sampled ``samples`` times in ``[t0, t1]``,
+        are carried back to the rest frame by the displacement of the nearest
+        node (so the tissue may move while it is cut) and appended to the
+        stroke's rest-frame samples; each sample is carried once, when it is
+        taken, so the strips of consecutive steps share their edge and the
+        stroke's sweep has no gaps however the tissue moves. Recording starts
+        with the sample before the blade's box first meets the tissue's box
+        grown by 5% of its diagonal (SPEC 6.1). The stroke is cut (in the rest
+        frame) at the path's end, or every step in progressive mode.
         """
         if self._done or t1 <= self.path.t0:
             return None
         structure = sim._structure
         a, b = max(t0, self.path.t0), min(t1, self.path.t1)
         if b > a:
-            x = np.asarray(sim.positions, dtype=np.float64)
-            box = np.stack([x.min(axis=0), x.max(axis=0)])
-            strip = SweepSurface.from_path(self.tool, self.path, a, b, (t1 - t0) / self.samples, bounds=box)
-            if strip.triangle_count:
-                self._triangles.append(_to_rest(strip.triangles, structure, sim))
+            times = np.append(np.arange(a, b, (t1 - t0) / self.samples), b)
+            if self._last is not None:
+                times = times[times > self._last + 1e-12]
+            if len(times):
+                self._record(sim, structure, times)
         if t1 >= self.path.t1:
             self._done = True
         elif self.mode == "on_release":
             return None
-        if not self._triangles:
+        if len(self._rows_a) < 2:
             return None
-        sweep = SweepSurface(np.concatenate(self._triangles))
+        sweep = SweepSurface.from_edges(np.stack(self._rows_a), np.stack(self._rows_b))
         structure.set_positions(sim.positions)
         if self._node_limit is None:
             self._node_limit = len(structure.node_rest)
         result = cut(structure, sweep, snap=self.snap, collect=False, configuration="rest",
-                     node_limit=self._node_limit, device=sim.device, threads=sim.threads)  # fmt: skip
+                     node_limit=self._node_limit, materials=self.materials, device=sim.device,
+                     threads=sim.threads)  # fmt: skip
         apply_cut(sim, result)
         self.results.append(result)
         return result
 
+    def _record(self, sim, structure, times: np.ndarray) -> None:
+        """Take the samples at ``times`` (after every sample taken so far) into the stroke, in the rest frame."""
+        started = bool(self._rows_a)
+        if not started:
+            x = np.asarray(sim.positions, dtype=np.float64)
+            low, high = x.min(axis=0), x.max(axis=0)
+            grow = 0.05 * float(np.linalg.norm(high - low))
+            tb = self.tool.bounds(self.path.pose(times))
+            meets = np.all((tb[:, 0] <= high + grow) & (tb[:, 1] >= low - grow), axis=1)
+            if not meets.any():
+                self._last = float(times[-1])
+                return
+            first = int(np.argmax(meets))
+            before = times[first - 1] if first else self._last  # the sample before the first that meets
+            times = times[first:] if before is None else np.append(before, times[first:])
+        edges_a, edges_b = cutting_edges(self.tool, self.path.pose(times), first=not started)
+        rows, strips = edges_a.shape[:2]
+        rest = _to_rest(np.concatenate([edges_a, edges_b]).reshape(-1, 3), structure, sim).reshape(2, rows, strips, 3)
+        self._rows_a.extend(rest[0])
+        self._rows_b.extend(rest[1])
+        self._last = float(times[-1])
 
-def _to_rest(triangles: np.ndarray, structure, sim) -> np.ndarray:
-    """(M, 3, 3) world triangles carried to the rest frame by the nearest node's displacement (a hash grid)."""
+
+def _to_rest(points: np.ndarray, structure, sim) -> np.ndarray:
+    """(K, 3) world points carried to the rest frame by the nearest node's displacement (a hash grid)."""
     import warp as wp
 
     from .._parallel import launch
@@ -150,8 +183,8 @@ def _to_rest(triangles: np.ndarray, structure, sim) -> np.ndarray:
     pos = wp.array(x, dtype=wp.vec3, device=dev)
     grid = wp.HashGrid(64, 64, 64, device=dev)
     grid.build(pos, radius)
-    pts = wp.array(triangles.reshape(-1, 3).astype(np.float32), dtype=wp.vec3, device=dev)
+    pts = wp.array(np.asarray(points, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3, device=dev)
     out = wp.empty_like(pts)
     launch(k.to_rest_kernel, pts.shape[0], [grid.id, pts, pos, wp.array(rest, dtype=wp.vec3, device=dev), radius],
            [out], dev, sim.threads)  # fmt: skip
-    return out.numpy().astype(np.float64).reshape(-1, 3, 3)
+    return out.numpy().astype(np.float64)

@@ -14,7 +14,7 @@ import numpy as np
 
 from .._errors import CutError
 
-__all__ = ["SweepSurface"]
+__all__ = ["SweepSurface", "cutting_edges"]
 
 #: a triangle whose area is below this fraction of its longest edge squared is dropped (the blade stood still)
 _SLIVER = 1e-12
@@ -197,16 +197,43 @@ class SweepSurface:
             poses = path.pose(times[first : last + 1])
         if len(np.atleast_2d(poses.position)) < 2:
             raise CutError("SweepSurface.from_path: the stroke leaves fewer than two samples")
-        if isinstance(tool, Scalpel):
-            a, b = tool.edge_points(poses)
-            return cls.from_blade(a, b)
-        quads = tool.wall_quads(poses)  # (T, S, 4, 3): bit, bit_next, top_next, top
-        # each wall segment's strip: its edge at the top of the first pose, then the bit's edge at every pose;
-        # time-major (sample by sample, every segment of a sample together): an edge keeps its first hit
-        a = np.concatenate([quads[:1, :, 3], quads[:, :, 0]])  # (T + 1, S, 3)
-        b = np.concatenate([quads[:1, :, 2], quads[:, :, 1]])
-        strips = np.broadcast_to(np.arange(quads.shape[1], dtype=np.int32)[None, :, None], (len(a) - 1, quads.shape[1], 2))
+        return cls.from_edges(*cutting_edges(tool, poses, first=True))
+
+    @classmethod
+    def from_edges(cls, a, b) -> SweepSurface:
+        """The strips traced by ``S`` cutting edges sampled ``R`` times: (R, S, 3) end points ``a`` and ``b``
+        (:func:`cutting_edges`); strip ``s`` joins the edges ``a[:, s] - b[:, s]`` of consecutive samples.
+
+        Triangles are time-major (sample by sample, every strip of a sample together): an edge keeps its first hit.
+        """
+        a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+        if a.ndim != 3 or a.shape != b.shape or a.shape[2] != 3 or len(a) < 2:
+            raise CutError(f"SweepSurface.from_edges: a and b must be (R >= 2, S, 3) alike, got {a.shape}, {b.shape}")
+        strips = np.broadcast_to(np.arange(a.shape[1], dtype=np.int32)[None, :, None], (len(a) - 1, a.shape[1], 2))
         return cls(_strip(a, b), strips.reshape(-1))
+
+
+def cutting_edges(tool, poses, *, first: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The cutting edges of a Scalpel or Drill at ``poses``: (R, S, 3) end points ``a`` and ``b``.
+
+    A scalpel has one edge (S = 1: tip and heel), R = the poses. A drill has
+    one per wall segment (S = segments: the bit ring's edges); with ``first``
+    its wall's top edges at the first pose come first (R = poses + 1), so the
+    strips also cover the wall where the drill starts (a drill that starts
+    inside the material cuts along its whole tube).
+    """
+    from ..tools import Scalpel
+
+    if isinstance(tool, Scalpel):
+        a, b = tool.edge_points(poses)
+        return np.atleast_2d(a)[:, None], np.atleast_2d(b)[:, None]
+    quads = tool.wall_quads(poses)  # (T, S, 4, 3): bit, bit_next, top_next, top
+    if quads.ndim == 3:
+        quads = quads[None]
+    a, b = quads[:, :, 0], quads[:, :, 1]
+    if first:
+        a, b = np.concatenate([quads[:1, :, 3], a]), np.concatenate([quads[:1, :, 2], b])
+    return a, b
 
 
 def _strip(a: np.ndarray, b: np.ndarray) -> np.ndarray:
