@@ -15,7 +15,7 @@ import numpy as np
 
 from ..sim._contact import highlight
 
-__all__ = ["FrameCamera", "render_frame"]
+__all__ = ["FrameCamera", "render_frame", "render_cut_frame"]
 
 _TOOL_COLOR = (0.55, 0.58, 0.64)
 _POINT_COLOR = (0.85, 0.1, 0.1)
@@ -77,6 +77,58 @@ def render_frame(sim, path: str, camera: FrameCamera, *, title: str = "", window
         if len(points):
             plotter.add_points(points.astype(np.float64), color=_POINT_COLOR, point_size=7,
                                render_points_as_spheres=True)  # fmt: skip
+    if title:
+        plotter.add_text(title, position="upper_left", font_size=11, color="black")
+    camera.place(plotter)
+    tmp = path + ".tmp.png"
+    plotter.screenshot(tmp)
+    plotter.close()
+    os.replace(tmp, path)
+    return path
+
+
+def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, title: str = "",
+                     window_size=(960, 720)) -> str:  # fmt: skip
+    """Render a simulation that cuts (built on a TetStructure) to a PNG: the tet mesh's boundary, cuts included.
+
+    The boundary of the live tets at the current positions
+    (:meth:`~warpblob.mesh.TetStructure.surface`), coloured by ``model``'s
+    colour field at the rest positions (cut faces show the inside), the
+    cutting tools (:attr:`~warpblob.Simulation.cutters`) drawn where their
+    paths put them at ``sim.time``; written atomically.
+
+    Args:
+        sim: a :class:`~warpblob.Simulation` on a :class:`~warpblob.mesh.TetStructure`.
+        path: the PNG file.
+        camera: the run's :class:`FrameCamera`.
+        model: BlobTree node for the colours (None: the simulation's model, else grey).
+        title: text at the top left.
+        window_size: (width, height) pixels.
+
+    Returns:
+        ``path``.
+    """
+    import pyvista as pv
+    import vtk
+
+    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
+    pv.OFF_SCREEN = True
+    structure = sim._structure
+    structure.set_positions(sim.positions)
+    surface = structure.surface(model=model if model is not None else sim.model)
+    plotter = pv.Plotter(off_screen=True, window_size=list(window_size), lighting="none")
+    plotter.add_light(pv.Light(light_type="headlight"))
+    plotter.set_background("white")
+    if surface.face_count:
+        faces = np.column_stack([np.full(surface.face_count, 3), surface.faces]).ravel()
+        body = pv.PolyData(surface.vertices.astype(np.float64), faces)
+        body["RGB"] = (np.clip(surface.colors, 0.0, 1.0) * 255).astype(np.uint8)
+        plotter.add_mesh(body, scalars="RGB", rgb=True, smooth_shading=False, ambient=0.35, diffuse=0.75,
+                         specular=0.1)  # fmt: skip
+    for cutter in sim.cutters:
+        if cutter.path.t0 <= sim.time <= cutter.path.t1 + 0.25:
+            plotter.add_mesh(cutter.tool.to_pyvista(cutter.path.pose(sim.time)), color=_TOOL_COLOR, opacity=0.5,
+                             smooth_shading=False, ambient=0.3)  # fmt: skip
     if title:
         plotter.add_text(title, position="upper_left", font_size=11, color="black")
     camera.place(plotter)

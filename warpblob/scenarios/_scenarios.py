@@ -37,7 +37,7 @@ from ..sim import Simulation
 from ..tetrahedralize import tetrahedralize
 from ..tools import Path, Probe
 
-__all__ = ["probe_tumor", "push_three_slabs", "press_cake", "ALL", "GREEN"]
+__all__ = ["probe_tumor", "push_three_slabs", "press_cake", "CONTACT", "GREEN"]
 
 #: the colour of the slab fixed to the wall in ``push_three_slabs``
 GREEN = (0.2, 0.75, 0.3)
@@ -214,5 +214,5 @@ def press_cake(cellsize: float = 0.4, steps: int = 120, *, poisson: float = 0.45
     return sim
 
 
-#: the scenarios by name, as the command line knows them
-ALL = {"probe_tumor": probe_tumor, "push_three_slabs": push_three_slabs, "press_cake": press_cake}
+#: the tool-contact scenarios by name
+CONTACT = {"probe_tumor": probe_tumor, "push_three_slabs": push_three_slabs, "press_cake": press_cake}

@@ -1,0 +1,178 @@
+"""Drilling: a trephine bores plugs out of the eggshell; the plug is one closed piece of the right volume."""
+
+import numpy as np
+import pytest
+
+import warpblob as wb
+from warpblob.cut import SweepSurface, cut
+from warpblob.mesh import TetStructure
+from warpblob.scenarios import drill_eggshell, drill_steps, total_steps
+from warpblob.scenarios._drilling import DRILL_RADIUS, EGGSHELL_RADII, _holes
+
+SNAP = 0.2
+CELL = 0.14  # the coarsest size at which the 0.18 shell is not pinched
+
+
+@pytest.fixture(scope="module")
+def shell():
+    return wb.tetrahedralize(wb.scenes.eggshell(), cellsize=CELL)
+
+
+def _bore(x, y, stop=None, *, segments=16, start=None):
+    """A drill rising along z through the bottom of the shell at (x, y) (the scenario's stroke), to ``stop``."""
+    outer, inner = EGGSHELL_RADII
+    near, far = max(np.hypot(x, y) - DRILL_RADIUS, 0.0), np.hypot(x, y) + DRILL_RADIUS
+    z0 = -np.sqrt(outer**2 - near**2) - 0.08 if start is None else start
+    z1 = -np.sqrt(inner**2 - far**2) + 0.1 if stop is None else stop
+    drill = wb.tools.Drill(DRILL_RADIUS, 0.6, segments=segments)
+    path = wb.tools.Path.line((x, y, z0), (x, y, z1), 1.0, align=True)
+    return SweepSurface.from_path(drill, path, dt=0.05), drill
+
+
+def _prism_volume(mesh: wb.TetMesh, x, y, segments=16) -> float:
+    """Volume of ``mesh`` inside the drill's wall prism under z = 0 (VTK's exact clip by each plane): the reference."""
+    grid = mesh.to_pyvista().clip(normal=[0.0, 0.0, 1.0], origin=[0.0, 0.0, 0.0], crinkle=False)  # keeps z < 0
+    angle = 2 * np.pi * (np.arange(segments) + 0.5) / segments
+    apothem = DRILL_RADIUS * np.cos(np.pi / segments)
+    for a in angle:
+        n = np.array([np.cos(a), np.sin(a), 0.0])
+        grid = grid.clip(normal=list(n), origin=[x + apothem * n[0], y + apothem * n[1], 0.0], crinkle=False)
+    return float(grid.compute_cell_sizes().cell_data["Volume"].sum())
+
+
+def _edge(mesh):
+    p = mesh.nodes[mesh.tets].astype(np.float64)
+    return max(float(np.linalg.norm(p[:, i] - p[:, j], axis=1).max()) for i in range(4) for j in range(i))
+
+
+def _pieces(s):
+    labels = s.components()[np.asarray(s.cell_alive)]
+    return labels, np.bincount(labels)
+
+
+def test_eggshell_drilled_once_frees_one_closed_plug_of_the_prism_volume(shell, device):
+    s = TetStructure.from_tetmesh(shell)
+    sweep, drill = _bore(0.013, -0.009)
+    r = cut(s, sweep, snap=SNAP, device=device)
+    assert r.components == 2
+    s.check()
+    tm, rest = s.to_tetmesh(), s.to_tetmesh(rest=True)
+    assert tm.volumes().min() > 0 and rest.volumes().min() > 0
+    assert abs(rest.volume() - shell.volume()) <= 1e-6 * shell.volume()
+    labels, sizes = _pieces(s)
+    plug = int(np.argmin(sizes))
+    volume = float(tm.volumes()[labels == plug].sum())
+    reference = _prism_volume(shell, 0.013, -0.009)
+    # the wall area inside the shell: the prism's side times the shell's thickness along z (about 0.19 here)
+    wall = 16 * 2 * DRILL_RADIUS * np.sin(np.pi / 16) * 0.2
+    assert abs(volume - reference) <= wall * SNAP * _edge(shell), (volume, reference)
+    surf = s.surface()
+    assert surf.is_closed_manifold() and surf.shell_count() == 2  # the hole joins the shell's two sides; the plug
+    for p in range(2):  # each piece alone is closed
+        piece = wb.TetMesh(tm.nodes, tm.tets[labels == p])
+        assert TetStructure.from_tetmesh(piece).surface().is_closed_manifold()
+
+
+def test_six_holes_make_six_plugs(shell):
+    s = TetStructure.from_tetmesh(shell)
+    for x, y in _holes(6):
+        cut(s, _bore(x, y)[0], snap=SNAP)
+    labels, sizes = _pieces(s)
+    assert len(sizes) == 7
+    assert abs(s.to_tetmesh(rest=True).volume() - shell.volume()) <= 1e-6 * shell.volume()
+    assert s.to_tetmesh().volumes().min() > 0
+
+
+def test_a_drill_stopped_in_the_wall_leaves_a_groove_and_going_on_frees_the_plug(shell):
+    s = TetStructure.from_tetmesh(shell)
+    outer, inner = EGGSHELL_RADII
+    middle = -0.5 * (outer + inner)  # the bit halfway through the wall at the axis
+    first = cut(s, _bore(0.013, -0.009, stop=middle)[0], snap=SNAP)
+    assert first.components == 1 and first.tets_added > 0
+    s.check()
+    groove = s.surface()
+    assert groove.is_closed_manifold() and groove.is_cut.any()  # a closed groove, open to the outside only
+    cut_depth = groove.vertices[groove.faces[groove.is_cut]][..., 2]
+    assert cut_depth.max() < middle + 0.2 * CELL  # the groove stops about where the bit did
+    second = cut(s, _bore(0.013, -0.009, start=middle - 0.02)[0], snap=SNAP)
+    assert second.components == 2
+    s.check()
+    assert s.to_tetmesh().volumes().min() > 0
+    assert s.surface().is_closed_manifold()
+
+
+def test_drill_eggshell_scenario_drops_the_plug():
+    sim = drill_eggshell(CELL)
+    top = float(sim.positions[:, 2].min())
+    steps = total_steps(sim)
+    sim.step(steps)
+    assert sim.stats["components"] == 2
+    s = sim._structure
+    labels, sizes = _pieces(s)
+    plug = int(np.argmin(sizes))
+    live = np.asarray(s.cell_nodes)[np.asarray(s.cell_alive)]
+    plug_nodes = np.unique(live[labels == plug])
+    x = sim.positions
+    # the plug left its hole: its highest point is now below where the shell's lowest point was
+    assert x[plug_nodes, 2].max() < top
+    assert x[plug_nodes, 2].min() >= sim.ground[0] - 1e-3
+    rows = drill_steps(sim)
+    assert rows and rows[-1]["components"] == 2
+    assert sum(r["tets_cut"] for r in rows) > 0
+    assert all(set(r["ms"]) >= {"intersection", "classification", "subdivision", "topology", "total"} for r in rows)
+
+
+@pytest.mark.parametrize("holes", [0, 13, 2.0, True])
+def test_bad_hole_counts_are_refused(holes):
+    with pytest.raises(wb.WarpblobError, match="holes"):
+        drill_eggshell(CELL, holes=holes)
+
+
+def test_the_scenario_command_records_the_cuts(tmp_path, capsys):
+    """``warpblob scenario cut_tumor``: the stage's last frame has the tets and pieces the run ended with."""
+    import argparse
+    import json
+
+    from pxr import Usd, UsdGeom
+
+    from warpblob.scenarios._command import add_scenario_parser, run_scenario
+
+    parser = argparse.ArgumentParser()
+    add_scenario_parser(parser.add_subparsers(dest="command"))
+    out = tmp_path / "run"
+    args = parser.parse_args(["scenario", "cut_tumor", "--out", str(out), "--cellsize", "0.25", "--frames", "2",
+                              "--every", "6", "--usdc"])  # fmt: skip
+    assert run_scenario(args) == 0
+    report = capsys.readouterr().out
+    rows = json.loads((out / "cut_tumor_steps.json").read_text())["steps"]
+    pieces_expected = _pieces_of_strokes(0.25)
+    assert len(rows) == 3 and rows[-1]["components"] == pieces_expected >= 4
+    stage = Usd.Stage.Open(str(out / "cut_tumor.usdc"))
+    end = stage.GetEndTimeCode()
+    tets = UsdGeom.TetMesh(stage.GetPrimAtPath("/Simulation/Volume"))
+    counts = [len(tets.GetTetVertexIndicesAttr().Get(t)) for t in (0, end)]
+    assert counts[0] < counts[1]
+    pieces = [p for p in stage.GetPrimAtPath("/Simulation/Pieces").GetChildren()]
+    visible = [p for p in pieces if UsdGeom.Imageable(p).ComputeVisibility(end) != UsdGeom.Tokens.invisible]
+    assert len(visible) == pieces_expected
+    assert len(list(out.glob("cut_tumor_*.png"))) == 2 and f"{pieces_expected} pieces" in report
+
+
+def _pieces_of_strokes(cellsize):
+    """The reference: the tumor's tets grouped by the sides of the three stroke planes (each stroke sweeps
+    the vertical plane through its path), the connected groups counted (independent of the cutter)."""
+    from warpblob.scenarios import cut_tumor
+
+    sim = cut_tumor(cellsize)
+    mesh = sim._structure.to_tetmesh(rest=True)
+    centroid = mesh.nodes[mesh.tets].mean(axis=1)
+    side = np.zeros(mesh.tet_count, dtype=np.int64)
+    for k, cutter in enumerate(sim.cutters):
+        start, end = cutter.path.positions[0], cutter.path.positions[-1]
+        across = int(np.argmin(np.abs(end - start)[:2]))  # the horizontal axis the stroke does not move along
+        side += (centroid[:, across] > start[across]).astype(np.int64) << k
+    count = 0
+    for region in np.unique(side):
+        part = wb.TetMesh(mesh.nodes, mesh.tets[side == region])
+        count += len(np.unique(TetStructure.from_tetmesh(part).components()))
+    return count

@@ -1,0 +1,140 @@
+"""The thesis' drilling showcase as ready simulations: the eggshell drilled, the head's skull opened.
+
+A trephine (:class:`~warpblob.tools.Drill`, a tube whose side wall cuts)
+bores through a shell; the cut is made every step from the whole stroke so
+far (:class:`~warpblob.cut._sim.Cutter`, ``mode="progressive"``): the tets
+the bit ring stops in are partly cut (the progressive tables) and completed
+by the next steps, so when the bit leaves the far side of the shell the plug
+comes free as one closed piece and falls under gravity (Shirazian 2014,
+chapter 6, the drill tool; SPEC section 6).
+
+* :func:`drill_eggshell`: the eggshell (:func:`warpblob.scenes.eggshell`,
+  0.18 thick) held by its top cap and drilled from below, straight up, so
+  each plug drops out of its own hole onto the ground; ``holes=6`` is the
+  thesis' stress test (one hole at the bottom, five around it).
+
+Units as in :mod:`warpblob.scenarios._scenarios`: one model unit is one
+metre for the SI constants. The shell is stiff (``young`` 1e8 Pa by default:
+it barely sags under its own weight) and every step records the cut's
+statistics (:func:`drill_steps`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._errors import WarpblobError
+from ..mesh import TetStructure
+from ..scenes import eggshell
+from ..sim import Simulation
+from ..tetrahedralize import tetrahedralize
+from ..tools import Drill, Path
+from ._scenarios import _check
+
+__all__ = ["drill_eggshell", "drill_steps", "total_steps", "EGGSHELL_RADII", "HOLE_STEPS", "FALL_STEPS"]
+
+#: the eggshell's outer and inner radii (model units; :func:`warpblob.scenes.eggshell`)
+EGGSHELL_RADII = (1.362, 1.181)
+#: steps of 1/60 s a hole takes to drill, and the steps the plugs then fall
+HOLE_STEPS, FALL_STEPS = 30, 45
+#: drill radius, wall segments, and how far it starts below and ends past the shell (model units)
+DRILL_RADIUS, DRILL_SEGMENTS, APPROACH, OVERSHOOT = 0.16, 16, 0.08, 0.1
+
+
+def _holes(holes: int) -> np.ndarray:
+    """(holes, 2) the drill axes' (x, y): one near the bottom pole, the others on a ring around it."""
+    centre = np.array([[0.013, -0.009]])  # off the lattice's symmetry planes
+    if holes == 1:
+        return centre
+    angle = 2 * np.pi * np.arange(holes - 1) / (holes - 1) + 0.1
+    ring = 0.62 * np.column_stack([np.cos(angle), np.sin(angle)])
+    return np.concatenate([centre, ring + centre])
+
+
+def drill_eggshell(cellsize: float = 0.12, *, holes: int = 1, young: float = 1e8, poisson: float = 0.3,
+                   segments: int = DRILL_SEGMENTS, device=None, threads: int | None = None,
+                   **options) -> Simulation:  # fmt: skip
+    """The eggshell held by its top cap, drilled straight up from below ``holes`` times, one hole after another.
+
+    The shell (outer radius 1.362, 0.18 thick) is meshed by isosurface
+    stuffing at ``cellsize`` (0.12: about 31K tets, the shell two to three
+    tets thick; coarser than 0.14 the thin wall pinches, see
+    :func:`warpblob.tetrahedralize`) and simulated on a
+    :class:`~warpblob.mesh.TetStructure` with its nodes above ``z = 1.0``
+    fixed and the ground at ``z = -1.9``. Each drill (radius 0.16, ``segments``
+    wall quads) rises along z from 0.08 below the shell to 0.1 past its
+    inside in :data:`HOLE_STEPS` steps; hole ``k`` starts when hole ``k - 1``
+    ends. Run ``holes * HOLE_STEPS + FALL_STEPS`` steps to see every plug
+    fall (:func:`total_steps`).
+
+    Args:
+        cellsize: tet size, model units.
+        holes: holes to drill, 1 to 12 (6 is the thesis' stress test).
+        young, poisson: the shell's Young's modulus (Pa) and Poisson's ratio.
+        segments: the drill's wall quads (>= 3).
+        device, threads: as :class:`~warpblob.Simulation`.
+        options: more :class:`~warpblob.Simulation` arguments.
+
+    Returns:
+        The simulation at time 0; ``sim.cutters`` are the drills in order
+        (each one's ``results`` are its steps' cuts, :func:`drill_steps`).
+
+    Raises:
+        WarpblobError: a bad cellsize or number of holes.
+
+    Example:
+        >>> from warpblob.scenarios import drill_eggshell, total_steps
+        >>> sim = drill_eggshell(0.14)
+        >>> sim.step(total_steps(sim))
+        >>> sim.stats["components"]  # the shell and its plug
+        2
+    """
+    cellsize, _ = _check("drill_eggshell", cellsize, 2)
+    if isinstance(holes, bool) or not isinstance(holes, (int, np.integer)) or not 1 <= holes <= 12:
+        raise WarpblobError(f"drill_eggshell: holes must be an integer in [1, 12], got {holes!r}")
+    volume = tetrahedralize(eggshell(), cellsize=cellsize, device=device)
+    structure = TetStructure.from_tetmesh(volume)
+    nodes = volume.nodes.astype(np.float64)
+    settings = {"damping": (2.0, 0.0), **options}
+    sim = Simulation(structure, young=young, poisson=poisson, density=1000.0, fixed=nodes[:, 2] > 1.0,
+                     ground=(-1.9, 0.5), model=eggshell(), device=device, threads=threads,
+                     **settings)  # fmt: skip
+    outer, inner = EGGSHELL_RADII
+    drill = Drill(DRILL_RADIUS, 0.6, segments=segments)
+    duration = HOLE_STEPS * sim.dt
+    for k, (x, y) in enumerate(_holes(int(holes))):
+        near, far = max(float(np.hypot(x, y)) - DRILL_RADIUS, 0.0), float(np.hypot(x, y)) + DRILL_RADIUS
+        start = -np.sqrt(outer**2 - near**2) - APPROACH  # below the shell's lowest point under the drill
+        end = -np.sqrt(inner**2 - far**2) + OVERSHOOT  # past the inside's highest point under it
+        path = Path.line((x, y, start), (x, y, end), duration, align=True, t0=k * duration)
+        sim.add_tool(drill, path, cut=True, mode="progressive")
+    sim.stats["scenario"] = {"name": "drill_eggshell", "holes": int(holes), "steps": total_steps(sim)}
+    return sim
+
+
+def total_steps(sim: Simulation) -> int:
+    """Steps that play a cutting or drilling scenario to its end: every cutter's path, then the pieces' fall
+    (:data:`FALL_STEPS` for drilling, :data:`~warpblob.scenarios._cutting.SETTLE_STEPS` for the scalpel)."""
+    from ._cutting import SETTLE_STEPS
+
+    last = max((c.path.t1 for c in sim.cutters), default=0.0)
+    name = sim.stats.get("scenario", {}).get("name")
+    return int(round(last / sim.dt)) + (SETTLE_STEPS if name == "cut_tumor" else FALL_STEPS)
+
+
+def drill_steps(sim: Simulation) -> list[dict]:
+    """The statistics of every drill step so far: per step, the drill, its cut's counts and milliseconds by stage.
+
+    Each row: ``drill`` (its index in ``sim.cutters``), ``step`` (the
+    drill's own step), ``tets_cut`` (tets a table entry split), ``tets_added``,
+    ``tets_removed``, ``components`` and ``ms`` (per stage of
+    :func:`warpblob.cut.cut`, and ``total``).
+    """
+    rows = []
+    for d, cutter in enumerate(sim.cutters):
+        for i, r in enumerate(cutter.results):
+            ms = {stage: 1e3 * s for stage, s in r.seconds.items()}
+            ms["total"] = sum(ms.values())
+            rows.append({"drill": d, "step": i, "tets_cut": r.split_cells, "tets_added": r.tets_added,
+                         "tets_removed": r.tets_removed, "components": r.components, "ms": ms})  # fmt: skip
+    return rows
