@@ -54,7 +54,9 @@ __all__ = [
     "towers",
     "medusa",
     "head",
+    "head_materials",
     "HEAD_TISSUES",
+    "HEAD_MATERIALS",
     "default",
     "ALL",
 ]
@@ -487,6 +489,52 @@ def head(*, cut_away: bool = False):
             for layer, color in zip(layers, HEAD_TISSUES.values())
         )
     return Union(*layers)
+
+
+#: material names of :func:`head_materials`, in material id order (outermost first); the
+#: ventricles hold cerebrospinal fluid too (ids 1 and 4 are both CSF)
+HEAD_MATERIALS = ("skull", "cerebrospinal fluid", "grey matter", "white matter", "ventricles")
+#: lobe scales of the contiguous head's layer surfaces: the outer skull, then the middle of each
+#: gap of :func:`head` (0.915 / 0.895, 0.85 / 0.83, 0.72 / 0.70)
+_HEAD_LAYER_SCALES = (1.0, 0.905, 0.84, 0.71)
+
+
+def head_materials():
+    """The contiguous layered head as nested solids, for ``tetrahedralize(..., materials=...)``.
+
+    The same brain-shaped blend as :func:`head` at four scales, each solid a
+    whole (filled) copy: ``skull`` (scale 1, the outer skull surface),
+    ``cerebrospinal fluid`` (0.905), ``grey matter`` (0.84), ``white matter``
+    (0.71), and the two ``ventricles`` inside the white matter. The material
+    of a point is the innermost solid containing it, so the tissues touch:
+    the skull is the shell between scales 1 and 0.905, the CSF between 0.905
+    and 0.84, the grey matter between 0.84 and 0.71, and the white matter
+    fills the rest but for the ventricles, which hold CSF (their own id, 4).
+    Each interface lies in the middle of the corresponding gap of
+    :func:`head`, so every layer keeps its thickness there plus half of each
+    neighbouring gap (about 0.02 model units more).
+
+    Returns:
+        dict name -> solid in material id order (:data:`HEAD_MATERIALS`);
+        ``["skull"]`` is the whole head, the domain to mesh.
+
+    Example:
+        >>> import warpblob as wb
+        >>> layers = wb.scenes.head_materials()
+        >>> list(layers) == list(wb.scenes.HEAD_MATERIALS)
+        True
+        >>> mesh = wb.tetrahedralize(layers["skull"], cellsize=0.4, materials=layers)
+        >>> mesh.stats["materials"][0], sorted(set(mesh.material.tolist()))
+        ('skull', [0, 1, 2, 3, 4])
+    """
+    colors = tuple(HEAD_TISSUES.values())
+    solids = [_lobes(scale, color) for scale, color in zip(_HEAD_LAYER_SCALES, colors)]
+    h = _HEAD_SIZE
+    ventricles = Blend(
+        Point((-0.22 * h, 0.05 * h, 0.35 * h), 0.55 * h, color=colors[1]),
+        Point((0.22 * h, 0.05 * h, 0.35 * h), 0.55 * h, color=colors[1]),
+    )
+    return dict(zip(HEAD_MATERIALS, solids + [ventricles]))
 
 
 def default():

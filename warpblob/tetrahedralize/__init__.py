@@ -55,7 +55,20 @@ size the next allocation):
    distance with ties to the lower row, the model's colour at the tet's
    centroid (one colour evaluation per tet, :func:`warpblob.field.color`).
    Tissues are told apart by colour: the head's skull, cerebrospinal fluid,
-   grey and white matter get four ids.
+   grey and white matter get four ids. With ``materials=[s0, s1, ...]``
+   instead, the material of a tet is the innermost listed solid containing
+   its centroid (the highest ``i`` with ``F_i >= 0.5``, 0 where none does),
+   and the interface nodes are snapped towards the true interfaces under a
+   dihedral-angle guard (:mod:`._materials`): one conforming mesh whose
+   material interfaces are shared faces.
+8. **Thin walls.** The boundary is checked for pinches (:mod:`._pinch`): an
+   edge in more than two boundary faces, or a boundary vertex whose faces
+   form more than one fan, happens where a wall or gap is thinner than the
+   cells. Counts go to ``stats["pinched_edges"]`` and
+   ``stats["pinched_vertices"]``; if there are any, the local thickness is
+   probed along the gradient at the pinched spots and a
+   :class:`PinchedBoundaryWarning` names the cell size that resolves the
+   thinnest (``strict=True``: :class:`PinchedBoundaryError` instead).
 
 ``stats["seconds"]`` times each stage, from the set-up (argument checks, the
 model's linearization and device copy) to building the mesh object (host
@@ -157,6 +170,17 @@ Example:
     (0, True, True)
 """
 
+from ._materials import SNAP_MAX_DIHEDRAL, SNAP_MIN_DIHEDRAL
+from ._pinch import RESOLVING_FACTOR, PinchedBoundaryError, PinchedBoundaryWarning
 from ._stuffing import ALPHA_LONG, ALPHA_SHORT, tetrahedralize
 
-__all__ = ["ALPHA_LONG", "ALPHA_SHORT", "tetrahedralize"]
+__all__ = [
+    "ALPHA_LONG",
+    "ALPHA_SHORT",
+    "PinchedBoundaryError",
+    "PinchedBoundaryWarning",
+    "RESOLVING_FACTOR",
+    "SNAP_MAX_DIHEDRAL",
+    "SNAP_MIN_DIHEDRAL",
+    "tetrahedralize",
+]

@@ -11,6 +11,7 @@ the call's first line, times all of it, the mesh construction included, so
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,9 +27,10 @@ from ..field._engine import model_arrays
 from ..field._kernels import ModelArrays
 from ..mesh._tetmesh import TetMesh
 from ..tree import ISO_VALUE
-from . import _graded, _kernels, _tables
+from . import _graded, _kernels, _materials, _pinch, _tables
+from ._pinch import PinchedBoundaryError, PinchedBoundaryWarning
 
-__all__ = ["ALPHA_LONG", "ALPHA_SHORT", "tetrahedralize"]
+__all__ = ["ALPHA_LONG", "ALPHA_SHORT", "PinchedBoundaryError", "PinchedBoundaryWarning", "tetrahedralize"]
 
 ALPHA_LONG = 0.24999
 ALPHA_SHORT = 0.41189
@@ -405,12 +407,16 @@ def _stencils(
     return raw, n_stencil, plan
 
 
-def _nodes(run: _Run, raw: wp.array, targets: wp.array, cuts: _Cuts) -> tuple[wp.array, wp.array]:
+def _nodes(
+    run: _Run, raw: wp.array, labels: wp.array, targets: wp.array, cuts: _Cuts
+) -> tuple[wp.array, wp.array, wp.array]:
     """Stage 6: keep the lattice and cut points a tet uses, renumbered by a scan.
 
     Returns:
-        ``(nodes, tets)``: (N,) vec3 positions, model units (warped points on their
-        cut point), and (T,) vec4i tets in that numbering.
+        ``(nodes, tets, surface)``: (N,) vec3 positions, model units (warped points
+        on their cut point), (T,) vec4i tets in that numbering, and (N,) int32 1
+        for the nodes on the surface (cut points, warped points, lattice points
+        with ``F = iso``).
     """
     dev, n_raw = run.device, raw.shape[0]
     used = wp.zeros(run.n_points + cuts.count, dtype=wp.int32, device=dev)
@@ -425,10 +431,13 @@ def _nodes(run: _Run, raw: wp.array, targets: wp.array, cuts: _Cuts) -> tuple[wp
     )
     tets = wp.empty(n_raw, dtype=wp.vec4i, device=dev)
     run.launch(_kernels.renumber_tets_kernel, n_raw, [node_ids, raw], [tets])
-    return nodes, tets
+    surface = wp.empty(n_nodes, dtype=wp.int32, device=dev)
+    run.launch(_pinch.flag_surface_nodes_kernel, run.n_points + cuts.count, [run.n_points, labels, used, node_ids],
+               [surface])  # fmt: skip
+    return nodes, tets, surface
 
 
-def _materials(run: _Run, lm: LinearModel, nodes: wp.array, tets: wp.array) -> tuple[wp.array, np.ndarray]:
+def _materials_by_color(run: _Run, lm: LinearModel, nodes: wp.array, tets: wp.array) -> tuple[wp.array, np.ndarray]:
     """Stage 7: a material id per tet, the primitive colour nearest the model's colour at its centroid.
 
     Returns:
@@ -469,13 +478,17 @@ def tetrahedralize(
     max_memory: int | None = None,
     threads: int | None = None,
     progress: bool | None = None,
+    materials=None,
+    strict: bool = False,
 ) -> TetMesh:
     """Fill ``model`` with tetrahedra by isosurface stuffing (Labelle & Shewchuk 2007).
 
     See :mod:`warpblob.tetrahedralize` for the method and its guarantees.
 
     Args:
-        model: a model (:class:`~warpblob.Node`) or its :class:`~warpblob.LinearModel`.
+        model: a model (:class:`~warpblob.Node`) or its :class:`~warpblob.LinearModel`;
+            with ``materials``, the domain to mesh (``None``: the union of the
+            listed solids).
         cellsize: side of the body-centred cubic lattice's cubes (its long
             edge length), model units, > 0.
         interior_cellsize: largest cube side of the graded interior, rounded
@@ -493,6 +506,19 @@ def tetrahedralize(
         threads: CPU threads (default: :func:`warpblob.thread_count`).
         progress: show a bar of the stages on a terminal (``None``: for
             lattices of 8 million cells and more, jobs of seconds).
+        materials: ``None`` (tissues by colour, below), or a sequence of
+            solids ``[s0, s1, ...]`` or a mapping name -> solid: a
+            multi-material mesh (:mod:`warpblob.tetrahedralize._materials`).
+            The material of a point is the innermost listed solid containing
+            it, the highest ``i`` with ``F_i >= 0.5`` (0 where none does);
+            each tet takes the material of its centroid, ``material[t] = i``,
+            and the nodes of the interfaces between materials are snapped
+            towards the true interfaces under a quality guard. With
+            ``interior_cellsize``, coarse cubes stay inside one material.
+            ``stats["materials"]`` holds the names (the mapping's keys, else
+            ``material0``, ``material1``, ...).
+        strict: raise :class:`PinchedBoundaryError` instead of warning when the
+            boundary is pinched (a wall or gap thinner than the cells).
 
     Returns:
         :class:`~warpblob.mesh.TetMesh` with positively oriented tets,
@@ -518,10 +544,30 @@ def tetrahedralize(
         ``mesh``: the host copies, these statistics and the mesh object);
         ``total_seconds``, their sum, the whole call but for writing these
         times; and ``wall_seconds``, the whole call by ``time.perf_counter``.
+        Thin walls: ``pinched_edges`` (boundary edges in more than two
+        boundary faces) and ``pinched_vertices`` (boundary vertices whose
+        faces form more than one fan), both 0 for a closed 2-manifold
+        boundary; when either is not, ``pinch_thickness`` (the thinnest local
+        thickness found at the pinched spots, model units, NaN when none
+        could be measured) and ``pinch_cellsize`` (the suggested cell size,
+        ``pinch_thickness / RESOLVING_FACTOR``, or half ``cellsize`` when no
+        thickness was measured), and a :class:`PinchedBoundaryWarning`.
+        With ``materials``: ``materials`` (names), ``tets_per_material``,
+        ``interface_faces`` (``"a-b"`` -> count, ``a < b``),
+        ``interface_nodes``, ``snap_candidates``, ``snapped_nodes``,
+        ``interface_error`` and ``interface_error_unsnapped`` (``max`` and
+        ``mean`` distance of the interface nodes from the true interfaces,
+        in cell sizes, after and before snapping; after, also ``max_single``
+        and ``mean_single`` over the nodes on one interface and off the
+        boundary), ``dihedral_min_per_material``
+        and ``dihedral_max_per_material`` (degrees, NaN for an empty
+        material), ``interface_dihedral_min`` and ``interface_dihedral_max``
+        (over the tets with a node on an interface).
 
     Raises:
         WarpblobError: bad arguments (``interior_cellsize < cellsize``
             included). ResourceError: the estimated memory exceeds ``max_memory``.
+            PinchedBoundaryError: ``strict`` and the boundary is pinched.
 
     Example:
         >>> import warpblob as wb
@@ -540,7 +586,14 @@ def tetrahedralize(
     a_short = _alpha("alpha_short", alpha_short)
     threads = check_threads(threads, f"{_WHO}: threads")
     dev = resolve_device(device)
+    strict = bool(strict)
+    names = solids = None
+    if materials is not None:
+        names, solids = _materials.parse_materials(materials)
+        if model is None:
+            model = _materials.domain_of(solids)
     lm = linearize(model)
+    material_lms = None if solids is None else [linearize(s) for s in solids]
     limit = available_memory(dev) if max_memory is None else int(max_memory)
     stats: dict = {
         "cellsize": h,
@@ -551,7 +604,9 @@ def tetrahedralize(
     lo, hi = lm.bounds
     if np.any(lo > hi):
         clock = StageClock(dev, _WHO, 1, start=start)
-        stats.update(tets=0, nodes=0, field_evaluations=0)
+        stats.update(tets=0, nodes=0, field_evaluations=0, pinched_edges=0, pinched_vertices=0)
+        if names is not None:
+            stats["materials"] = names
         mesh = TetMesh._trusted(np.zeros((0, 3), np.float32), np.zeros((0, 4), np.int32), np.zeros(0, np.int32), stats)
         clock.lap("mesh")
         return _clocked(mesh, clock, start)
@@ -574,13 +629,20 @@ def tetrahedralize(
     labels, targets, rounds = _warp(run, values, cuts, a_long, a_short)
     clock.lap("warp")
     if levels.count:
-        _coarsen(run, labels, levels)
+        # with materials, no coarse cube may straddle a material interface
+        graded = labels if material_lms is None else _materials.coarse_labels(lat, labels, material_lms, dev, threads)
+        _coarsen(run, graded, levels)
         clock.lap("coarse")
     raw, n_stencil, plan = _stencils(run, labels, cuts, active, levels)
     clock.lap("stencil")
-    nodes, tets = _nodes(run, raw, targets, cuts)
+    nodes, tets, surface = _nodes(run, raw, labels, targets, cuts)
     clock.lap("nodes")
-    material, palette = _materials(run, lm, nodes, tets)
+    if material_lms is None:
+        material, palette = _materials_by_color(run, lm, nodes, tets)
+        nodes_np, material_np = None, None
+    else:
+        nodes_np, material_np, material_stats, interface_nodes = _multi_material(run, material_lms, nodes, tets,
+                                                                                 surface)  # fmt: skip
     clock.lap("materials")
 
     # host sync: the mesh and its statistics are numpy (on a GPU the first read waits, the rest copy)
@@ -598,7 +660,7 @@ def tetrahedralize(
         root_evaluations=root_evaluations,
         field_evaluations=lattice_evaluations + root_evaluations,
         interval_evaluations=n_blocks + int(bounded.numpy().sum()),
-        material_evaluations=tets.shape[0],
+        material_evaluations=tets.shape[0] * (1 if material_lms is None else len(material_lms)),
         cut_points=cuts.count,
         coarse_levels=levels.count,
         stencil_tets=n_stencil,
@@ -608,9 +670,112 @@ def tetrahedralize(
         warp_rounds=rounds,
         tets=tets.shape[0],
         nodes=nodes.shape[0],
-        materials=palette.tolist(),
     )
+    tets_np = tets.numpy().reshape(-1, 4)
+    if material_lms is None:
+        stats["materials"] = palette.tolist()
+        nodes_np, material_np = nodes.numpy().reshape(-1, 3), material.numpy()
     # valid by construction (the tests check the invariants on every scene): not checked again
-    mesh = TetMesh._trusted(nodes.numpy().reshape(-1, 3), tets.numpy().reshape(-1, 4), material.numpy(), stats)
+    mesh = TetMesh._trusted(nodes_np, tets_np, material_np, stats)
+    if material_lms is not None:
+        stats.update(materials=names, **material_stats, **_material_quality(mesh, len(names), interface_nodes))
+    _check_pinches(run, lm, surface, tets, mesh, h, strict)
     clock.lap("mesh")
     return _clocked(mesh, clock, start)
+
+
+def _multi_material(run: _Run, lms: list, nodes: wp.array, tets: wp.array, surface: wp.array):
+    """Stage 7 with ``materials``: labels by centroid, then interface snapping (:mod:`._materials`).
+
+    Returns:
+        ``(nodes, material, stats, on)``: (N, 3) float32 snapped positions, (T,) int32
+        material ids, the stage's statistics, and (N,) bool the interface nodes.
+    """
+    n_tets = tets.shape[0]
+    check_memory(_WHO, "material", n_tets * (16 + 8 * len(lms)), run.limit)
+    centroids = wp.empty(n_tets, dtype=wp.vec3, device=run.device)
+    run.launch(_kernels.average_nodes_kernel, n_tets, [nodes, tets], [centroids])
+    ids = _materials.label(lms, centroids, run.threads)
+    # host glue over the interfaces (surface-sized work after one pass over the tets' faces)
+    nodes_np = nodes.numpy().reshape(-1, 3)
+    tets_np = tets.numpy().reshape(-1, 4)
+    faces, pair, _ = _materials.interface_faces(tets_np, ids)
+    h = run.lattice.h
+    fixed = surface.numpy() != 0
+    _, before = _materials.interface_distances(nodes_np, faces, pair, lms, h, run.threads, run.device)
+    snapped, info = _materials.snap(nodes_np, tets_np, ids, lms, h, fixed, run.threads, faces, pair, run.device)
+    incid, after = _materials.interface_distances(snapped, faces, pair, lms, h, run.threads, run.device)
+    lo, hi, _ = _materials.node_targets(len(nodes_np), faces, pair)
+    single = (lo == hi)[incid[:, 0]] & ~fixed[incid[:, 0]]
+    keys, counts = np.unique(pair, axis=0, return_counts=True) if len(pair) else (np.zeros((0, 2), int), [])
+    stats = {
+        "tets_per_material": np.bincount(ids, minlength=len(lms)).tolist(),
+        "interface_faces": {f"{a}-{b}": int(c) for (a, b), c in zip(keys.tolist(), list(counts))},
+        **info,
+        "interface_error": {**_error_summary(after, h),
+                            **{f"{k}_single": v for k, v in _error_summary(after[single], h).items()}},
+        "interface_error_unsnapped": _error_summary(before, h),
+    }
+    on = np.zeros(len(nodes_np), dtype=bool)
+    on[faces.reshape(-1)] = True
+    return snapped, ids, stats, on
+
+
+def _error_summary(distances: np.ndarray, h: float) -> dict:
+    """``max`` and ``mean`` of ``distances`` in cell sizes (0 for no interface)."""
+    if not len(distances):
+        return {"max": 0.0, "mean": 0.0}
+    return {"max": float(distances.max() / h), "mean": float(distances.mean() / h)}
+
+
+def _material_quality(mesh: TetMesh, n_materials: int, on: np.ndarray) -> dict:
+    """Dihedral angle range per material and over the tets with a node on an interface (``on``, per node)."""
+    q = mesh.quality()
+    lo, hi, ids = q.tet_dihedral_min, q.tet_dihedral_max, mesh.material
+    per_lo = [float(lo[ids == m].min()) if np.any(ids == m) else float("nan") for m in range(n_materials)]
+    per_hi = [float(hi[ids == m].max()) if np.any(ids == m) else float("nan") for m in range(n_materials)]
+    touching = on[mesh.tets].any(axis=1)
+    return {
+        "dihedral_min_per_material": per_lo,
+        "dihedral_max_per_material": per_hi,
+        "interface_dihedral_min": float(lo[touching].min()) if touching.any() else float("nan"),
+        "interface_dihedral_max": float(hi[touching].max()) if touching.any() else float("nan"),
+    }
+
+
+#: most pinched spots probed for their thickness (spread evenly over the list)
+_MAX_PROBES = 4096
+
+
+def _check_pinches(run: _Run, lm: LinearModel, surface: wp.array, tets: wp.array, mesh: TetMesh, h: float,
+                   strict: bool) -> None:  # fmt: skip
+    """Thin walls: count the pinched edges and vertices of the boundary into ``mesh.stats``;
+    when there are any, estimate the thinnest part, then warn (or raise when ``strict``)."""
+    stats = mesh.stats
+    if not mesh.tet_count:
+        stats.update(pinched_edges=0, pinched_vertices=0)
+        return
+    candidates = _pinch.candidate_tets(surface, tets, run.device, run.threads)
+    faces = _pinch.boundary_faces(mesh.tets[candidates], surface.numpy() != 0)
+    edges, vertices = _pinch.find_pinches(faces)
+    stats.update(pinched_edges=len(edges), pinched_vertices=len(vertices))
+    if not (len(edges) or len(vertices)):
+        return
+    nodes = mesh.nodes.astype(np.float64)
+    spots = np.concatenate([0.5 * (nodes[edges[:, 0]] + nodes[edges[:, 1]]), nodes[vertices]])
+    if len(spots) > _MAX_PROBES:
+        spots = spots[np.linspace(0, len(spots) - 1, _MAX_PROBES).astype(np.int64)]
+    t = _pinch.thickness(lm, spots, h, device=run.device, threads=run.threads)
+    thinnest = float(np.nanmin(t)) if np.any(np.isfinite(t)) else float("nan")
+    suggested = thinnest / _pinch.RESOLVING_FACTOR if np.isfinite(thinnest) else 0.5 * h
+    stats.update(pinch_thickness=thinnest, pinch_cellsize=suggested)
+    where = spots[0].round(4).tolist()
+    message = (
+        f"tetrahedralize: the boundary is pinched at cellsize {h:g} ({len(edges)} edges in more than two "
+        f"boundary faces, {len(vertices)} vertices with more than one fan, e.g. near {where}): a wall or gap "
+        + (f"{thinnest:.4g} thick" if np.isfinite(thinnest) else "of unmeasured thickness")
+        + f" is thinner than the cells; cellsize <= {suggested:.4g} resolves it"
+    )
+    if strict:
+        raise _pinch.PinchedBoundaryError(message)
+    warnings.warn(message, _pinch.PinchedBoundaryWarning, stacklevel=3)
