@@ -176,3 +176,38 @@ def _pieces_of_strokes(cellsize):
         part = wb.TetMesh(mesh.nodes, mesh.tets[side == region])
         count += len(np.unique(TetStructure.from_tetmesh(part).components()))
     return count
+
+
+def test_craniotomy_drills_bone_only_and_the_skull_stays_rigid():
+    """Two holes in the rigid skull: only skull tets split; every other tet and its nodes as they were; the
+    anchored skull does not move by a bit; each plug is a free rigid body (its nodes keep their distances)."""
+    from warpblob.scenarios import craniotomy
+
+    sim = craniotomy(0.3, cross_section=False)
+    s = sim._structure
+    before = s.to_tetmesh(rest=True)
+    cells0 = np.asarray(s.cell_nodes).copy()
+    soft = np.flatnonzero(before.material != 0)
+    soft_nodes = np.unique(before.tets[soft])
+    rest0 = np.asarray(s.node_rest).copy()
+    x0 = sim.positions
+    anchored = sim.anchors
+    sim.step(total_steps(sim))
+    results = [r for c in sim.cutters for r in c.results]
+    removed = np.unique(np.concatenate([r.removed for r in results]))
+    assert removed.size and np.all(np.asarray(s.cell_material)[removed] == 0)  # only bone was split
+    alive = np.asarray(s.cell_alive)
+    assert np.all(alive[soft]) and np.array_equal(np.asarray(s.cell_nodes)[soft], cells0[soft])
+    assert np.array_equal(np.asarray(s.node_rest)[soft_nodes], rest0[soft_nodes])
+    assert np.array_equal(sim.positions[anchored], x0[anchored])  # the anchored skull, bit for bit
+    bodies = sim.rigid_bodies
+    assert len(bodies["nodes"]) >= 2  # the two plugs (at this coarse size perhaps a sliver more)
+    x, rest = sim.positions.astype(np.float64), np.asarray(s.node_rest, dtype=np.float64)
+    for nodes in bodies["nodes"]:
+        d = np.linalg.norm(x[nodes][:, None] - x[nodes][None], axis=2)
+        d0 = np.linalg.norm(rest[nodes][:, None] - rest[nodes][None], axis=2)
+        assert np.abs(d - d0).max() < 1e-4 * max(d0.max(), 1.0)
+    tm = s.to_tetmesh()
+    assert tm.volumes().min() > 0
+    assert abs(s.to_tetmesh(rest=True).volume() - before.volume()) <= 1e-6 * before.volume()
+    assert sum(r.split_cells for r in results) > 0

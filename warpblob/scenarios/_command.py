@@ -22,9 +22,10 @@ _SETTINGS = {
     "press_cake": (0.4, (1.0, -1.5, 0.9)),
     "cut_tumor": (0.2, (1.0, -1.5, 1.0)),
     "drill_eggshell": (0.12, (0.7, -1.0, -0.9)),
+    "craniotomy": (0.2, (1.3, -0.8, 1.1)),
 }
 #: the scenarios that cut: their own arguments, pictures of the cut mesh and per-step cut statistics
-_CUTTING = ("cut_tumor", "drill_eggshell")
+_CUTTING = ("cut_tumor", "drill_eggshell", "craniotomy")
 
 
 def add_scenario_parser(subparsers):
@@ -36,11 +37,13 @@ def add_scenario_parser(subparsers):
     p.add_argument("name", choices=sorted(_SETTINGS), help="the experiment")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     p.add_argument("--cellsize", type=float, default=None, help="tet size at the boundary, model units "
-                   "(default: 0.25 probe_tumor, 0.2 slabs and cut_tumor, 0.4 cake, 0.12 eggshell)")  # fmt: skip
+                   "(default: 0.25 probe_tumor, 0.2 slabs, cut_tumor and craniotomy, 0.4 cake, 0.12 eggshell)")  # fmt: skip
     p.add_argument("--steps", type=int, default=None,
                    help="steps of 1/60 s (default 120; cutting and drilling: until every piece has fallen)")
     p.add_argument("--holes", type=int, default=1, help="drill_eggshell: holes to drill, 1-12 (default 1; 6 is "
                    "the thesis' stress test)")  # fmt: skip
+    p.add_argument("--no-cross-section", action="store_true",
+                   help="craniotomy: drill only (no scalpel cut across the front)")
     p.add_argument("--every", type=int, default=1, help="record every N-th step in the stage (default 1)")
     p.add_argument("--frames", type=int, default=8, help="PNG frames, evenly spaced, 0 for none (default 8)")
     p.add_argument("--contact", choices=("field", "nearest"), default="field",
@@ -119,9 +122,12 @@ def _run_cutting(args, out: pathlib.Path, cellsize: float, direction, device) ->
     import json
 
     from . import ALL, drill_steps, total_steps
+    from ._drilling import HEAD_COLORS
     from ._frames import FrameCamera, render_cut_frame
 
     options = {"holes": args.holes} if args.name == "drill_eggshell" else {}
+    if args.name == "craniotomy":
+        options["cross_section"] = not args.no_cross_section
     if args.poisson is not None:
         options["poisson"] = args.poisson
     sim = ALL[args.name](cellsize, device=device, **options)
@@ -134,12 +140,14 @@ def _run_cutting(args, out: pathlib.Path, cellsize: float, direction, device) ->
     frame_count = 1 + steps // args.every
     wanted = set(np.linspace(0, frame_count - 1, args.frames).round().astype(int).tolist()) if args.frames else set()
     pictures = []
+    colors = HEAD_COLORS if args.name == "craniotomy" else None  # the layered head in its tissues' colours
 
     def on_frame(index: int) -> None:
         if index in wanted:
             pieces = sim.stats.get("components", 1)
             title = f"{args.name}  t = {sim.time:.3f} s   {sim.tet_count:,} tets   {pieces} piece(s)"
-            pictures.append(render_cut_frame(sim, str(out / f"{args.name}_{index:04d}.png"), camera, title=title))
+            png = str(out / f"{args.name}_{index:04d}.png")
+            pictures.append(render_cut_frame(sim, png, camera, material_colors=colors, title=title))
 
     stage = out / f"{args.name}.{'usdc' if args.usdc else 'usda'}"
     began = time.perf_counter()

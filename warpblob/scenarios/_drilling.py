@@ -12,6 +12,14 @@ chapter 6, the drill tool; SPEC section 6).
   0.18 thick) held by its top cap and drilled from below, straight up, so
   each plug drops out of its own hole onto the ground; ``holes=6`` is the
   thesis' stress test (one hole at the bottom, five around it).
+* :func:`craniotomy`: the layered head (:func:`warpblob.scenes.head_materials`,
+  one conforming mesh of skull, CSF, grey and white matter and ventricles),
+  its skull rigid and anchored at the back of its base, drilled twice from
+  above by drills that cut bone only (``materials={0}``): each bone plug
+  comes free of the skull as a free rigid body, still resting on the CSF
+  under it (the interface faces the drill did not cross stay joined). Then a
+  scalpel cuts across the front of the head through every tissue, and the
+  front falls away under gravity, showing the layers in its cut face.
 
 Units as in :mod:`warpblob.scenarios._scenarios`: one model unit is one
 metre for the SI constants. The shell is stiff (``young`` 1e8 Pa by default:
@@ -25,13 +33,13 @@ import numpy as np
 
 from .._errors import WarpblobError
 from ..mesh import TetStructure
-from ..scenes import eggshell
+from ..scenes import HEAD_TISSUES, eggshell
 from ..sim import Simulation
 from ..tetrahedralize import tetrahedralize
 from ..tools import Drill, Path
 from ._scenarios import _check
 
-__all__ = ["drill_eggshell", "drill_steps", "total_steps", "EGGSHELL_RADII", "HOLE_STEPS", "FALL_STEPS"]
+__all__ = ["drill_eggshell", "craniotomy", "drill_steps", "total_steps", "HEAD_YOUNG", "HEAD_COLORS", "EGGSHELL_RADII", "HOLE_STEPS", "FALL_STEPS"]
 
 #: the eggshell's outer and inner radii (model units; :func:`warpblob.scenes.eggshell`)
 EGGSHELL_RADII = (1.362, 1.181)
@@ -109,6 +117,97 @@ def drill_eggshell(cellsize: float = 0.12, *, holes: int = 1, young: float = 1e8
         path = Path.line((x, y, start), (x, y, end), duration, align=True, t0=k * duration)
         sim.add_tool(drill, path, cut=True, mode="progressive")
     sim.stats["scenario"] = {"name": "drill_eggshell", "holes": int(holes), "steps": total_steps(sim)}
+    return sim
+
+
+#: Young's moduli (Pa) of the head's soft tissues by material id (:data:`warpblob.scenes.HEAD_MATERIALS`; the
+#: skull, id 0, is rigid): stiff for brain, so that the 2 m model (a metre per model unit) does not slump
+HEAD_YOUNG = {0: 1e9, 1: 1.5e5, 2: 4e5, 3: 6e5, 4: 1.5e5}
+#: the head's tissue colours by material id (:data:`warpblob.scenes.HEAD_TISSUES`; the ventricles hold CSF)
+HEAD_COLORS = dict(enumerate([*HEAD_TISSUES.values(), HEAD_TISSUES["cerebrospinal fluid"]]))
+#: the craniotomy's drill sites (x, y) on the top of the skull, and the front cut's plane y
+CRANIOTOMY_SITES, FRONT_CUT = ((0.35, 0.1), (-0.35, 0.3)), -0.55
+
+
+def _surface_height(model, x: float, y: float, high: float) -> float:
+    """The highest z <= ``high`` at which the vertical line through (x, y) is inside ``model`` (sampled)."""
+    from ..field import field
+
+    z = np.linspace(high, -high, 8001)
+    values = np.asarray(field(model, np.column_stack([np.full_like(z, x), np.full_like(z, y), z])))
+    return float(z[int(np.argmax(values >= 0.5))])
+
+
+def craniotomy(cellsize: float = 0.2, *, cross_section: bool = True, young=None, poisson: float = 0.45,
+               segments: int = DRILL_SEGMENTS, device=None, threads: int | None = None,
+               **options) -> Simulation:  # fmt: skip
+    """The layered head, its rigid skull drilled twice from above, then cut across the front (module docstring).
+
+    The head is meshed by :func:`~warpblob.tetrahedralize` with
+    ``materials=scenes.head_materials()`` at ``cellsize`` (0.2: about 50K
+    tets, 14K of them skull, the skull about one cell thick on top; 0.118
+    gives the thesis' 66K skull tets) and simulated on a
+    :class:`~warpblob.mesh.TetStructure` under gravity with the skull
+    (material 0) rigid and anchored by its nodes in the lowest 15% of the
+    head's height behind its middle (``y > 0``). Drill ``k`` (radius 0.2,
+    ``segments`` wall quads, ``materials={0}``) goes straight down at
+    ``CRANIOTOMY_SITES[k]`` from 0.1 above the skull to 0.05 below its
+    inner surface in :data:`HOLE_STEPS` steps, one after the other; then,
+    with ``cross_section``, an upright scalpel (edge taller than the head)
+    crosses it along x at ``y = -0.55`` (:data:`FRONT_CUT`) in
+    :data:`~warpblob.scenarios._cutting.STROKE_STEPS` steps and cuts every
+    tissue there when its stroke ends.
+
+    Args:
+        cellsize: tet size, model units.
+        cross_section: add the scalpel's front cut after the drilling.
+        young: soft tissues' Young's moduli by material id (default :data:`HEAD_YOUNG`).
+        poisson: Poisson's ratio.
+        segments: the drills' wall quads.
+        device, threads: as :class:`~warpblob.Simulation`.
+        options: more :class:`~warpblob.Simulation` arguments.
+
+    Returns:
+        The simulation at time 0; ``sim.cutters`` are the two drills (and the scalpel).
+
+    Example:
+        >>> from warpblob.scenarios import craniotomy, total_steps
+        >>> sim = craniotomy(0.3, cross_section=False)
+        >>> sim.step(total_steps(sim))
+        >>> sim.stats["rigid"]["free"] >= 2  # the two bone plugs (and, this coarse, a bone sliver)
+        True
+    """
+    from ..scenes import head_materials
+    from ..tools import Scalpel
+    from ._cutting import STROKE_STEPS
+
+    cellsize, _ = _check("craniotomy", cellsize, 2)
+    layers = head_materials()
+    volume = tetrahedralize(layers["skull"], cellsize=cellsize, materials=layers, device=device)
+    nodes = volume.nodes.astype(np.float64)
+    low, high = nodes.min(axis=0), nodes.max(axis=0)
+    skull_nodes = np.zeros(volume.node_count, dtype=bool)
+    skull_nodes[volume.tets[volume.material == 0].ravel()] = True
+    anchors = skull_nodes & (nodes[:, 2] < low[2] + 0.15 * (high[2] - low[2])) & (nodes[:, 1] > 0.0)
+    settings = {"damping": (4.0, 0.0), **options}
+    sim = Simulation(TetStructure.from_tetmesh(volume), young=HEAD_YOUNG if young is None else young,
+                     poisson=poisson, density=1000.0, rigid={0}, anchors=anchors, model=layers["skull"],
+                     device=device, threads=threads, **settings)  # fmt: skip
+    drill = Drill(0.2, 0.6, segments=segments)
+    duration = HOLE_STEPS * sim.dt
+    for k, (x, y) in enumerate(CRANIOTOMY_SITES):
+        top = _surface_height(layers["skull"], x, y, float(high[2]) + 0.5)
+        inner = _surface_height(layers["cerebrospinal fluid"], x, y, float(high[2]) + 0.5)
+        path = Path.line((x, y, top + 0.1), (x, y, inner - 0.05), duration, align=True, t0=k * duration)
+        sim.add_tool(drill, path, cut=True, mode="progressive", materials={0})
+    if cross_section:
+        t0 = len(CRANIOTOMY_SITES) * duration
+        blade = Scalpel(float(high[2] - low[2]) + 0.4, 0.3)
+        start = (float(low[0]) - 0.2, FRONT_CUT, float(low[2]) - 0.2)
+        end = (float(high[0]) + 0.2, FRONT_CUT, float(low[2]) - 0.2)
+        sim.add_tool(blade, Path.line(start, end, STROKE_STEPS * sim.dt, align=True, t0=t0), cut=True,
+                     mode="on_release")  # fmt: skip
+    sim.stats["scenario"] = {"name": "craniotomy", "holes": len(CRANIOTOMY_SITES), "cross_section": cross_section}
     return sim
 
 

@@ -87,7 +87,7 @@ def render_frame(sim, path: str, camera: FrameCamera, *, title: str = "", window
     return path
 
 
-def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, title: str = "",
+def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, material_colors=None, title: str = "",
                      window_size=(960, 720)) -> str:  # fmt: skip
     """Render a simulation that cuts (built on a TetStructure) to a PNG: the tet mesh's boundary, cuts included.
 
@@ -102,6 +102,8 @@ def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, title: 
         path: the PNG file.
         camera: the run's :class:`FrameCamera`.
         model: BlobTree node for the colours (None: the simulation's model, else grey).
+        material_colors: instead, a colour per material id (``{id: (r, g, b)}``): each face flat in its
+            tet's tissue colour (a layered mesh's cut faces show its layers).
         title: text at the top left.
         window_size: (width, height) pixels.
 
@@ -115,11 +117,21 @@ def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, title: 
     pv.OFF_SCREEN = True
     structure = sim._structure
     structure.set_positions(sim.positions)
-    surface = structure.surface(model=model if model is not None else sim.model)
     plotter = pv.Plotter(off_screen=True, window_size=list(window_size), lighting="none")
     plotter.add_light(pv.Light(light_type="headlight"))
     plotter.set_background("white")
-    if surface.face_count:
+    if material_colors is not None:
+        faces, owner = _boundary(np.asarray(structure.cell_nodes)[np.asarray(structure.cell_alive)])
+        material = np.asarray(structure.cell_material)[np.asarray(structure.cell_alive)][owner]
+        palette = np.array([material_colors.get(int(m), (0.7, 0.7, 0.7)) for m in range(int(material.max()) + 1)])
+        body = pv.PolyData(sim.positions.astype(np.float64), np.column_stack([np.full(len(faces), 3), faces]).ravel())
+        body.cell_data["RGB"] = (np.clip(palette[material], 0.0, 1.0) * 255).astype(np.uint8)
+        plotter.add_mesh(body, scalars="RGB", rgb=True, smooth_shading=False, ambient=0.35, diffuse=0.75,
+                         specular=0.1)  # fmt: skip
+        surface = None
+    else:
+        surface = structure.surface(model=model if model is not None else sim.model)
+    if surface is not None and surface.face_count:
         faces = np.column_stack([np.full(surface.face_count, 3), surface.faces]).ravel()
         body = pv.PolyData(surface.vertices.astype(np.float64), faces)
         body["RGB"] = (np.clip(surface.colors, 0.0, 1.0) * 255).astype(np.uint8)
@@ -137,3 +149,14 @@ def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, title: 
     plotter.close()
     os.replace(tmp, path)
     return path
+
+
+def _boundary(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces of (T, 4) positive tets that no other tet shares, outward, and the tet each belongs to."""
+    from ..mesh._tetmesh import TET_FACES
+
+    faces = tets[:, TET_FACES].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    once = first[counts == 1]
+    return faces[once], once // 4
