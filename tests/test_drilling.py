@@ -201,7 +201,7 @@ def test_craniotomy_drills_bone_only_and_the_skull_stays_rigid():
     assert np.array_equal(np.asarray(s.node_rest)[soft_nodes], rest0[soft_nodes])
     assert np.array_equal(sim.positions[anchored], x0[anchored])  # the anchored skull, bit for bit
     bodies = sim.rigid_bodies
-    assert len(bodies["nodes"]) >= 2  # the two plugs (at this coarse size perhaps a sliver more)
+    assert len(bodies["nodes"]) == 2  # the two plugs
     x, rest = sim.positions.astype(np.float64), np.asarray(s.node_rest, dtype=np.float64)
     for nodes in bodies["nodes"]:
         d = np.linalg.norm(x[nodes][:, None] - x[nodes][None], axis=2)
@@ -211,3 +211,30 @@ def test_craniotomy_drills_bone_only_and_the_skull_stays_rigid():
     assert tm.volumes().min() > 0
     assert abs(s.to_tetmesh(rest=True).volume() - before.volume()) <= 1e-6 * before.volume()
     assert sum(r.split_cells for r in results) > 0
+
+
+def test_a_progressive_drill_in_a_simulation_frees_the_plug_of_one_stroke():
+    """The drill cuts every step (the stroke so far, its earlier cut nodes kept cut): when the bit has gone
+    through, the plug is one closed piece of the prism's volume, as one whole stroke cuts it, and it falls."""
+    from warpblob.mesh import box_tetmesh
+
+    mesh = box_tetmesh((0, 0, 0), (1, 1, 0.3), (12, 12, 4))
+    rim = (np.abs(mesh.nodes[:, 0] - 0.5) > 0.45) | (np.abs(mesh.nodes[:, 1] - 0.5) > 0.45)
+    sim = wb.Simulation(TetStructure.from_tetmesh(mesh), young=1e6, poisson=0.3, density=1000.0, rigid={0},
+                        anchors=rim)  # fmt: skip
+    drill = wb.tools.Drill(0.2, 0.6, segments=16)
+    path = wb.tools.Path.line((0.51, 0.49, 0.4), (0.51, 0.49, -0.1), 20 * sim.dt, align=True)
+    cutter = sim.add_tool(drill, path, cut=True, mode="progressive")
+    sim.step(24)
+    assert len(cutter.results) >= 15 and sim.stats["components"] == 2  # a cut a step (from the first two samples)
+    s = sim._structure
+    labels, sizes = _pieces(s)
+    plug = int(np.argmin(sizes))
+    rest = s.to_tetmesh(rest=True)
+    volume = float(rest.volumes()[labels == plug].sum())
+    prism = 16 / 2 * 0.2**2 * np.sin(2 * np.pi / 16) * 0.3
+    wall = 16 * 2 * 0.2 * np.sin(np.pi / 16) * 0.3
+    assert abs(volume - prism) <= wall * SNAP * _edge(mesh)
+    assert s.surface().is_closed_manifold() and rest.volumes().min() > 0
+    live = np.asarray(s.cell_nodes)[np.asarray(s.cell_alive)]
+    assert sim.positions[np.unique(live[labels == plug]), 2].max() < 0.3  # it fell out of its hole

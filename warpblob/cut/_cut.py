@@ -99,6 +99,7 @@ class CutResult:
         remap: per kind the old -> new index map of the garbage collection, or None.
         reductions: rounds the classification needed to make every code valid.
         split_cells, split_added: tets the cut split into several, and the sub-tets they became.
+        cut_nodes: (Q,) int32 the nodes the sweep snapped to (before their copies were made).
     """
 
     edges_cut: int = 0
@@ -118,6 +119,7 @@ class CutResult:
     reductions: int = 0
     split_cells: int = 0
     split_added: int = 0
+    cut_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
     @property
     def new_cells_per_cut_cell(self) -> float:
@@ -167,8 +169,8 @@ def _compact(flags: wp.array, device, threads) -> np.ndarray:
 
 
 def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, collect: bool = True,
-        configuration: str = "current", node_limit: int | None = None, materials=None, device=None,
-        threads: int | None = None) -> CutResult:  # fmt: skip
+        configuration: str = "current", node_limit: int | None = None, cut_nodes=None, materials=None,
+        device=None, threads: int | None = None) -> CutResult:  # fmt: skip
     """Cut ``structure`` along ``sweep`` (module docstring); the structure is edited in place.
 
     Args:
@@ -186,6 +188,12 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
             stroke re-applied whole (a simulation's progressive scalpel) then
             meets only the edges that were there when it began, not those its
             earlier steps made, and gives the cells of one stroke.
+        cut_nodes: nodes that are cut nodes whatever the hits (the nodes the
+            earlier steps of a stroke re-applied whole snapped to, and their
+            copies: ``CutResult.cut_nodes``): their edges are not split
+            again beside the sweep they already lie on (which would leave
+            slivers between the snapped and the exact surface), and a front
+            node the stroke has now passed is duplicated.
         materials: cut only tets of these material ids (an int or an iterable
             of ints; default: every tet). Tets of other materials, and their
             nodes, are left exactly as they were: an edge or node they share
@@ -276,6 +284,12 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     node_cut = np.zeros(N, dtype=np.uint8)
     node_cut[ends[t_hit < snap, 0]] = 1
     node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
+    if cut_nodes is not None:
+        sticky = np.asarray(cut_nodes, dtype=np.int64).ravel()
+        if sticky.size and (sticky.min() < 0 or sticky.max() >= N):
+            raise CutError(f"cut: cut_nodes must be node indices in [0, {N}), got {int(sticky.min())}.."
+                           f"{int(sticky.max())}; the structure is unchanged")  # fmt: skip
+        node_cut[sticky] = 1
     node_cut[state.protected] = 0
     dropped = np.zeros(len(hits), dtype=bool)
     cell_parent = state.cell_parent
@@ -340,6 +354,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
+    result.cut_nodes = np.flatnonzero(node_cut).astype(np.int32)
     t2 = time.perf_counter()
     result.seconds["classification"] = t2 - t1
 

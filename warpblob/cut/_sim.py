@@ -103,6 +103,7 @@ class Cutter:
         self._rows_b: list[np.ndarray] = []
         self._last = None  # time of the last sample taken (recorded or not)
         self._node_limit: int | None = None  # nodes before the stroke: only their edges are cut
+        self._cut_nodes = np.zeros(0, dtype=np.int64)  # nodes the stroke snapped to so far, and their copies
 
     def step(self, sim, t0: float, t1: float) -> CutResult | None:
         """Cut for the blade's motion from ``t0`` to ``t1`` (seconds); the result, or None when nothing was cut.
@@ -138,8 +139,10 @@ class Cutter:
         if self._node_limit is None:
             self._node_limit = len(structure.node_rest)
         result = cut(structure, sweep, snap=self.snap, collect=False, configuration="rest",
-                     node_limit=self._node_limit, materials=self.materials, device=sim.device,
-                     threads=sim.threads)  # fmt: skip
+                     node_limit=self._node_limit, cut_nodes=self._cut_nodes, materials=self.materials,
+                     device=sim.device, threads=sim.threads)  # fmt: skip
+        copies = result.new_nodes[result.node_sources[:, 0] == result.node_sources[:, 1]]
+        self._cut_nodes = np.union1d(self._cut_nodes, np.concatenate([result.cut_nodes, copies]))
         apply_cut(sim, result)
         self.results.append(result)
         return result
