@@ -86,3 +86,46 @@ def test_demo_refuses_too_few_samples(tmp_path, samples):
     r = run_cli("demo", "--out", str(tmp_path / "out"), "--samples", samples)
     assert r.returncode == 2 and "--samples" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_quick_demo_runs_the_whole_pipeline_into_one_animated_stage(tmp_path):
+    """``warpblob demo --quick``: every stage's files, and the composed stage checked with pxr alone at every
+    time code of each recorded scenario (tet counts against its own stage, topology sampled only where it
+    changed, finite points, nothing inverted, the piece surfaces closed, no validator error)."""
+    from pxr import Usd, UsdGeom
+
+    from test_recorder import _edges_closed, _visible_pieces
+    from test_usd import validation_errors
+
+    r = run_cli("demo", "--out", str(tmp_path), "--quick")
+    assert r.returncode == 0, r.stderr[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    pipeline = summary["pipeline"]
+    for name in ("probe_tumor", "cut_tumor", "drill_eggshell"):
+        assert (tmp_path / f"{name}.gif").read_bytes()[:3] == b"GIF"
+        assert (tmp_path / f"{name}.usdc").exists()
+    assert pipeline["cut_tumor"]["pieces"] >= 4 and pipeline["drill_eggshell"]["pieces"] == 2
+    assert set(pipeline["tetrahedralize"]) == {"tumor", "eggshell", "head"}
+    assert len(pipeline["tetrahedralize"]["head"]["tets_per_material"]) >= 4  # the head's tissues share one mesh
+    assert all((tmp_path / f).exists() for f in ("tet_quality.png", "slice_mug.png", "summary.txt"))
+    assert pipeline["slice"]["closed"] == [True, True]
+    stage = Usd.Stage.Open(str(tmp_path / "warpblob_demo.usdc"))
+    assert stage.GetDefaultPrim().GetName() == "Demo" and stage.GetEndTimeCode() > 0
+    assert stage.GetRootLayer().HasTimeCodesPerSecond() and stage.GetRootLayer().HasFramesPerSecond()
+    assert not stage.GetRootLayer().GetCompositionAssetDependencies()  # flattened: self-contained
+    assert UsdGeom.Mesh(stage.GetPrimAtPath("/Demo/tumor/surface"))
+    for name in ("cut_tumor", "drill_eggshell"):
+        own = Usd.Stage.Open(str(tmp_path / f"{name}.usdc"))
+        base = f"/Demo/Scenarios/{name}"
+        tet = UsdGeom.TetMesh(stage.GetPrimAtPath(base + "/Volume"))
+        mine = UsdGeom.TetMesh(own.GetPrimAtPath(own.GetDefaultPrim().GetPath().AppendPath("Volume")))
+        samples = tet.GetTetVertexIndicesAttr().GetTimeSamples()
+        points = tet.GetPointsAttr().GetTimeSamples()
+        assert len(samples) > 1 and len(samples) < len(points)  # topology only where a cut changed it
+        for code in points:
+            tets = np.asarray(tet.GetTetVertexIndicesAttr().Get(code))
+            assert len(tets) == len(np.asarray(mine.GetTetVertexIndicesAttr().Get(code)))
+            assert np.isfinite(np.asarray(tet.GetPointsAttr().Get(code))).all()
+            assert len(UsdGeom.TetMesh.FindInvertedElements(tet, Usd.TimeCode(code))) == 0
+            assert all(_edges_closed(f) for f in _visible_pieces(stage, base, Usd.TimeCode(code)).values())
+    assert validation_errors(tmp_path / "warpblob_demo.usdc") == []

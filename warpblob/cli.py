@@ -116,6 +116,8 @@ def cmd_field(args) -> int:
 _DEMO_CELLSIZE = {"towers": 0.1, "medusa": 0.05, "head": 0.02}
 #: points of each model's Monte Carlo volume estimate: a standard error near 0.1% of the box
 _DEMO_SAMPLES = 1_000_000
+#: ``--quick`` cell sizes: every model coarse (the head's layers merge at 0.05: its picture shows it)
+_QUICK_CELLSIZE = {"head": 0.05, "towers": 0.12, "medusa": 0.1}
 
 
 def _demo_model(name: str):
@@ -141,6 +143,9 @@ def cmd_demo(args) -> int:
     _prepare_outputs((args.out, "--out", None))
     start = time.perf_counter()
     names = list(scenes.ALL) if args.scene == "all" else [args.scene]
+    if args.quick:  # a smoke run: coarse models, few points
+        args.samples = min(args.samples, 20_000)
+        args.resolution = min(args.resolution, 48)
     rng = np.random.default_rng(0)
     summary, meshes = {}, {}
     for name in progress(names, desc="demo"):
@@ -155,7 +160,7 @@ def cmd_demo(args) -> int:
             "standard_error": round(estimate.standard_error, 6),
         }
         save_slices(model, os.path.join(args.out, f"{name}_slices.png"), name=name, resolution=args.resolution, device=args.device)
-        h = args.cellsize or _DEMO_CELLSIZE.get(name, 0.05)
+        h = args.cellsize or (_QUICK_CELLSIZE.get(name, 0.1) if args.quick else _DEMO_CELLSIZE.get(name, 0.05))
         t0 = time.perf_counter()
         mesh = polygonize(model, cellsize=h, device=args.device)
         shells = mesh.shell_count()
@@ -174,16 +179,47 @@ def cmd_demo(args) -> int:
         info["pictures"] = [f"{name}_slices.png", f"{name}_mesh.png"]
         summary[name] = info
         meshes[name] = mesh
-    stage_path = _write_demo_stage(meshes, os.path.join(args.out, "warpblob_demo.usdc"))
+    models = dict(summary)
+    scenarios = {}
+    if args.scene == "all" and args.pipeline:
+        from ._demo import run_pipeline
+
+        pipeline = run_pipeline(args.out, quick=args.quick, device=args.device)
+        scenarios = {name: os.path.join(args.out, file) for name, file in pipeline.pop("stages").items()}
+        summary = {"models": models, "pipeline": pipeline}
+    stage_path = _write_demo_stage(meshes, os.path.join(args.out, "warpblob_demo.usdc"), scenarios)
     _write_text(os.path.join(args.out, "summary.json"), json.dumps(summary, indent=2) + "\n")
-    lines = _summary_lines(summary, args.samples)
+    lines = _summary_lines(models, args.samples)
+    if scenarios:
+        lines += _pipeline_lines(summary["pipeline"])
     _write_text(os.path.join(args.out, "summary.txt"), "\n".join(lines) + "\n")
     print("\n".join(lines))
     print(
-        f"wrote {stage_path}, {2 * len(summary)} pictures, summary.json and summary.txt to {args.out} "
+        f"wrote {stage_path}, the pictures, summary.json and summary.txt to {args.out} "
         f"in {time.perf_counter() - start:.1f} s"
     )
     return 0
+
+
+def _pipeline_lines(pipeline: dict) -> list[str]:
+    """summary.txt: the pipeline's stages, one line each."""
+    lines = ["", "pipeline (seconds: " + ", ".join(f"{k} {v:g}" for k, v in pipeline["seconds"].items()) + ")"]
+    for name, t in pipeline["tetrahedralize"].items():
+        lines.append(f"  tetrahedralize {name}: {t['tets']:,} tets at h = {t['cellsize']}, dihedral angles "
+                     f"{t['dihedral_min']:.1f}-{t['dihedral_max']:.1f} deg, {t['seconds']:.2f} s")  # fmt: skip
+    for name in ("probe_tumor", "cut_tumor", "drill_eggshell"):
+        r = pipeline[name]
+        cuts = r.get("cuts")
+        extra = (f", {cuts['count']} cuts ({cuts['tets_cut']} tets cut, {cuts['cut_ms_median']} ms median)"
+                 if cuts else "")  # fmt: skip
+        lines.append(f"  {name}: {r['tets']:,} tets, {r['steps']} steps, {r['ms_per_step']} ms per step, "
+                     f"{r['pieces']} piece(s), volume {r['volume_change_percent']:+.3f}%{extra}; {r['stage']}, "
+                     f"{r['gif']}")  # fmt: skip
+    sl = pipeline["slice"]
+    lines.append(f"  slice mug: halves closed {sl['closed']}, {sl['section_loops']} section loop(s), "
+                 f"{sl['slice_seconds']} s; {sl['picture']}")  # fmt: skip
+    lines.append("  tet_quality.png: dihedral-angle and aspect-ratio histograms of the tet meshes")
+    return lines
 
 
 def _summary_lines(summary: dict, samples: int) -> list[str]:
@@ -210,24 +246,11 @@ def _summary_lines(summary: dict, samples: int) -> list[str]:
     return lines
 
 
-def _write_demo_stage(meshes: dict, path: str) -> str:
-    """One USD stage holding every demo mesh, laid out on a grid so they do not overlap."""
-    import pathlib
+def _write_demo_stage(meshes: dict, path: str, scenarios: dict | None = None) -> str:
+    """One USD stage holding every demo mesh on a grid, and the recorded scenarios beside them, animated."""
+    from ._demo import compose_stage
 
-    from pxr import UsdGeom
-
-    from .io.usd import author_mesh, export_atomically, new_stage
-
-    stage = new_stage(default_prim="Demo")
-    columns = 3
-    pitch = 1.2 * max((np.ptp(m.vertices, axis=0)[:2].max() for m in meshes.values() if m.vertex_count), default=1.0)
-    for k, (name, mesh) in enumerate(meshes.items()):
-        xform = UsdGeom.Xform.Define(stage, f"/Demo/{name}")
-        center = mesh.vertices.mean(axis=0) if mesh.vertex_count else np.zeros(3)
-        offset = np.array([(k % columns) * pitch, -(k // columns) * pitch, 0.0]) - np.array([center[0], center[1], 0.0])
-        xform.AddTranslateOp().Set(tuple(float(x) for x in offset))
-        author_mesh(stage, f"/Demo/{name}/surface", mesh)
-    return str(export_atomically(stage.GetRootLayer(), pathlib.Path(path), "demo"))
+    return str(compose_stage(path, meshes, scenarios or {}))
 
 
 def cmd_polygonize(args) -> int:
@@ -304,7 +327,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: Warp's default)")
     sub = p.add_subparsers(dest="command", required=True)
 
-    d = sub.add_parser("demo", help="polygonize the reference models into one USD stage, with pictures and a summary")
+    d = sub.add_parser("demo", help="the whole pipeline: models, meshes, tets, probe, cuts, drilling, slicing; "
+                       "one animated USD stage, pictures, GIFs and a summary")  # fmt: skip
     d.add_argument("--out", default="out", help="output folder (default: out)")
     d.add_argument("--scene", default="all", help="one built-in scene, or all (default)")
     d.add_argument("--resolution", type=int, default=256, help="pixels per slice side (default 256)")
@@ -313,6 +337,9 @@ def _parser() -> argparse.ArgumentParser:
         "--samples", type=int, default=_DEMO_SAMPLES,
         help=f"points of each model's Monte Carlo volume estimate (default {_DEMO_SAMPLES:,})",
     )  # fmt: skip
+    d.add_argument("--quick", action="store_true", help="small sizes and few frames: the whole pipeline in seconds")
+    d.add_argument("--no-pipeline", dest="pipeline", action="store_false",
+                   help="only the models (no tetrahedralization, probe, cuts, drilling or slicing)")
     d.set_defaults(func=cmd_demo)
 
     pg = sub.add_parser("polygonize", help="polygonize a scene into a watertight coloured UsdGeom.Mesh")

@@ -192,7 +192,7 @@ def render_frames(stage_path, out_dir, *, frames: int | None = 60, window_size=(
     center, size = 0.5 * (low + high), float(np.linalg.norm(high - low))
     direction = np.asarray(view, dtype=np.float64) / np.linalg.norm(view)
     plotter.camera.focal_point = center.tolist()
-    plotter.camera.position = (center + 1.05 * max(size, 1e-6) * direction).tolist()
+    plotter.camera.position = (center + 1.6 * max(size, 1e-6) * direction).tolist()  # the box in a 30 degree view
     plotter.camera.up = (0.0, 0.0, 1.0)
     plotter.camera.view_angle = 30.0
     fps = stage.GetTimeCodesPerSecond()
