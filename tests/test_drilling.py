@@ -155,6 +155,8 @@ def test_the_scenario_command_records_the_cuts(tmp_path, capsys):
     pieces = [p for p in stage.GetPrimAtPath("/Simulation/Pieces").GetChildren()]
     visible = [p for p in pieces if UsdGeom.Imageable(p).ComputeVisibility(end) != UsdGeom.Tokens.invisible]
     assert len(visible) == pieces_expected
+    first_blade = UsdGeom.Imageable(stage.GetPrimAtPath("/Simulation/Tools/Tool0"))  # its stroke is over at the end
+    assert [first_blade.ComputeVisibility(t) for t in (0, end)] == ["inherited", "invisible"]
     assert len(list(out.glob("cut_tumor_*.png"))) == 2 and f"{pieces_expected} pieces" in report
 
 

@@ -31,7 +31,9 @@ writes time samples (OpenUSD's own TetMesh tests do the same):
 
 - a tool on a path: a ``UsdGeom.Xform`` with translate and orient ops
   (double precision) sampled every frame at ``path.pose(t)``, holding the
-  tool's mesh;
+  tool's mesh, its ``visibility`` ``invisible`` while the time is more than
+  :data:`TOOL_PARK` seconds before its path starts or after it ends (sampled
+  where it changes);
 - a static :class:`~warpblob.mesh.SurfaceMesh` or :class:`~warpblob.mesh.TetMesh`:
   authored once.
 
@@ -77,6 +79,8 @@ __all__ = ["Recorder", "load_tetmesh_at", "load_mesh_at", "MATERIAL_PRIMVAR", "N
 _SUFFIXES = (".usda", ".usdc", ".usd")
 #: displayColor of the tool meshes (steel grey)
 TOOL_COLOR = (0.62, 0.64, 0.68)
+#: seconds a tool stays visible before its path starts and after it ends (a finished stroke's scalpel goes)
+TOOL_PARK = 0.1
 #: uniform int primvar: the material id of each tet (on a TetMesh), constant on a piece's per-material Mesh
 MATERIAL_PRIMVAR = "materialId"
 #: vertex int primvar of a piece's Mesh: the structure node of each vertex (pieces' meshes join on it)
@@ -417,9 +421,15 @@ class _ToolTrack:
         mesh.CreateExtentAttr(UsdGeom.PointBased.ComputeExtent(v))
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*TOOL_COLOR)]))
         rec.looks.bind(mesh.GetPrim(), "Tool", TOOL_COLOR)
+        self.visibility, self.shown = xform.CreateVisibilityAttr(), None
 
     def write(self, code: float, time: float) -> int:
-        pose = self.pose(self.clock() if self.clock is not None else time)
+        now = self.clock() if self.clock is not None else time
+        shown = self.path.t0 - TOOL_PARK <= now <= self.path.t1 + TOOL_PARK
+        if shown != self.shown:  # sampled where it changes: a tool away from its path is parked out of sight
+            self.visibility.Set(UsdGeom.Tokens.inherited if shown else UsdGeom.Tokens.invisible, code)
+            self.shown = shown
+        pose = self.pose(now)
         self.translate.Set(Gf.Vec3d(*map(float, pose.position)), code)
         x, y, z, w = map(float, pose.rotation)
         self.orient.Set(Gf.Quatd(w, x, y, z), code)
