@@ -3,10 +3,12 @@
 One call of :func:`cut`:
 
 1. **intersection** (kernel, one thread per edge): every live edge at its
-   current position against the sweep triangles found by a ``wp.Bvh``,
+   current position against the sweep triangles found by a ``wp.Bvh``
+   (a sweep of a few triangles, a plane or one stroke step, tests each
+   triangle's box in turn: the same candidates without the tree),
    Moller-Trumbore; an edge keeps its first hit (lowest triangle, the
-   earliest sample of the stroke). Hit edges are compacted by
-   ``wp.utils.array_scan``.
+   earliest sample of the stroke). Hit edges are compacted (on CUDA by
+   ``wp.utils.array_scan``, on the CPU by one pass over the flags).
 2. **classification**: a hit within ``snap`` x edge length of an end makes
    that node a *cut node* (the sweep snaps to the node, which does not move:
    no volume is made or lost) and drops every edge at a cut node from the
@@ -14,7 +16,8 @@ One call of :func:`cut`:
    code. Codes the tables do not have (a sweep curved or folded inside one
    tet: three cut edges on a face, say), the progressive code with a cut node
    (``Xp``), and tets whose sub-tets would not all be positive at the actual
-   split points are reduced: the cut edge whose hit is nearest an end snaps
+   split points (a kernel per changed tet: its table entry, rank
+   permutation and every sub-tet's volume) are reduced: the cut edge whose hit is nearest an end snaps
    to that end, and the codes are recomputed (a few rounds at most; each
    round removes cut edges, and a code without cut edges is always valid).
 3. **subdivision** by the generated tables (:mod:`warpblob.cut._tables`):
@@ -26,7 +29,9 @@ One call of :func:`cut`:
    union-find over the node's star; each resulting set gets its own copy,
    so a node at the end of a partial cut, whose star stays connected, is not
    duplicated. A tet face whose three corners are all cut nodes lies on the
-   sweep and separates its two tets.
+   sweep and separates its two tets. Kernels write the sub-tets (one flat
+   list, tet by tet in table order) and list the faces at cut nodes; one
+   thread pairs equal faces through a hash table and runs the union-find.
 4. **topology**: one batch edit of the :class:`~warpblob.mesh.TetStructure`
    (:meth:`~warpblob.mesh.TetStructure.replace_cells`: deferred removal,
    faces and edges found or made in vectorized passes), then
@@ -62,18 +67,22 @@ from .._device import resolve_device
 from .._errors import CutError
 from .._parallel import launch
 from .._stages import compact
-from ..mesh._structure import NODE_ORIGINS, TetStructure, _connected, vec6i
-from ..sim._elements import DEGENERATE_VOLUME
+from ..mesh._structure import NODE_ORIGINS, TetStructure, _unique_first, union_find_kernel, vec6i
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
 from ._sweep import SweepSurface
-from ._tables import REF_CELL, REF_FACE, REF_NODE, REF_SPLIT, cut_tables, rank_index
+from ._tables import _RANK_LOOKUP, REF_CELL, REF_FACE, REF_NODE, cut_tables
 
 __all__ = ["CutResult", "cut"]
 
 STAGES = ("intersection", "classification", "subdivision", "topology", "gc")
 #: reduction rounds before a cut gives up (each removes at least one cut edge per bad tet)
 _ROUNDS = 64
+#: sweeps of at most this many triangles are intersected without a BVH (each triangle's box tested in turn)
+_FEW_TRIANGLES = 16
+#: items per piece of a range-split launch of a kernel doing a few loads and stores per item (a piece is a
+#: launch: smaller ones cost more in overhead than they save)
+_CHEAP = 16384
 
 
 @dataclass
@@ -141,18 +150,14 @@ class CutResult:
         }  # fmt: skip
 
 
-def _signed_volumes(p: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    a, b, c, d = (p[tets[:, i]] for i in range(4))
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
-
-
-def _bvh(sweep: SweepSurface, device) -> tuple[wp.Bvh, wp.array]:
+def _boxes(sweep: SweepSurface, device) -> tuple[tuple[wp.array, wp.array], wp.array]:
+    """The sweep triangles' boxes (lowers, uppers: what the BVH is built on) and their corners."""
     tri = sweep.triangles
     pad = 1e-6 * max(float(np.linalg.norm(np.ptp(tri.reshape(-1, 3), axis=0))), 1e-12)
     lowers = wp.array(tri.min(axis=1) - pad, dtype=wp.vec3, device=device)
     uppers = wp.array(tri.max(axis=1) + pad, dtype=wp.vec3, device=device)
     corners = wp.array(tri.reshape(-1, 3).astype(np.float32), dtype=wp.vec3, device=device)
-    return wp.Bvh(lowers, uppers), corners
+    return (lowers, uppers), corners
 
 
 def _shared(values: np.ndarray, dtype, device) -> wp.array:
@@ -162,9 +167,12 @@ def _shared(values: np.ndarray, dtype, device) -> wp.array:
 
 
 def _compact(flags: wp.array, device, threads) -> np.ndarray:
-    """Indices of the non-zero flags (exclusive scan, then a kernel writes each at its place), on the host."""
+    """Indices of the non-zero flags, ascending, on the host: on the CPU one pass over the flags' own memory;
+    on CUDA an exclusive scan, then a kernel writes each at its place."""
     if flags.shape[0] == 0:
         return np.zeros(0, dtype=np.int32)
+    if not device.is_cuda:
+        return np.flatnonzero(flags.numpy()).astype(np.int32)
     return compact(flags, device, threads).numpy()
 
 
@@ -233,7 +241,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     dev = resolve_device(device)
     result = CutResult(seconds=dict.fromkeys(STAGES, 0.0))
     if sweep.triangle_count == 0:
-        result.components = int(structure.components().max()) + 1 if structure.cell_count else 0
+        result.components = structure._component_count()
         return result
     t_start = time.perf_counter()
     tables = cut_tables()
@@ -242,7 +250,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     edge_nodes_np = np.asarray(structure.edge_nodes)
     E, N, C = len(edge_nodes_np), len(structure.node_rest), len(structure.cell_nodes)
     positions_np = np.asarray(structure.node_position)
-    bvh, corners = _bvh(sweep, dev)
+    boxes, corners = _boxes(sweep, dev)
     edge_nodes = _shared(edge_nodes_np, wp.vec2i, dev)
     # edges live cells use (a split edge stays alive, unused, until the garbage collection)
     cell_edges_wp = _shared(np.asarray(structure.cell_edges), vec6i, dev)
@@ -251,30 +259,31 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         cell_alive_np = cell_alive_np & np.isin(np.asarray(structure.cell_material), selected).astype(np.uint8)
     cell_alive_wp = _shared(cell_alive_np, wp.uint8, dev)
     edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
-    launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads)
+    launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads, min_chunk=_CHEAP)
     if node_limit is not None:
         edge_ok.assign(edge_ok.numpy() * (edge_nodes_np.max(axis=1) < int(node_limit)).astype(np.uint8))
     frame = positions_np if configuration == "current" else np.asarray(structure.node_rest)
     positions = _shared(frame, wp.vec3, dev)
     hit_t = wp.empty(E, dtype=float, device=dev)
     hit_tri = wp.empty(E, dtype=wp.int32, device=dev)
-    launch(k.intersect_edges_kernel, E, [edge_nodes, edge_ok, positions, bvh.id, corners], [hit_t, hit_tri], dev,
-           threads, min_chunk=1024)  # fmt: skip
     flags = wp.empty(E, dtype=wp.int32, device=dev)
-    launch(k.flag_positive_kernel, E, [hit_t], [flags], dev, threads)
+    if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
+        launch(k.intersect_edges_few_kernel, E, [edge_nodes, edge_ok, positions, *boxes, corners],
+               [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
+    else:
+        bvh = wp.Bvh(*boxes)
+        launch(k.intersect_edges_kernel, E, [edge_nodes, edge_ok, positions, bvh.id, corners], [hit_t, hit_tri, flags],
+               dev, threads, min_chunk=1024)  # fmt: skip
     hits = _compact(flags, dev, threads)
     t_hit = hit_t.numpy()[hits].astype(np.float64)
     t1 = time.perf_counter()
     result.seconds["intersection"] = t1 - t_start
 
     # -- 2. classification ------------------------------------------------------------------------
-    rest_np = np.asarray(structure.node_rest, dtype=np.float64)
     cell_nodes_np = np.asarray(structure.cell_nodes)
     cell_edges_np = np.asarray(structure.cell_edges)
     arrays = {"cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev), "cell_edges": cell_edges_wp,
               "cell_alive": cell_alive_wp}  # fmt: skip
-    code_wp = wp.empty(C, dtype=wp.int32, device=dev)
-    changed_wp = wp.empty(C, dtype=wp.int32, device=dev)
     split_t = np.full(E, -1.0)
     rounds = 0
     state = _ParentState(structure, edge_nodes_np)
@@ -292,34 +301,42 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         node_cut[sticky] = 1
     node_cut[state.protected] = 0
     dropped = np.zeros(len(hits), dtype=bool)
-    cell_parent = state.cell_parent
+    set_t = np.zeros(0, dtype=np.int64)
+    # the cells that can get a code in any round: those at an end of a hit edge or at a given cut node (cut
+    # nodes and the ends of cut edges are such nodes); one pass over the cells, then each round codes only these
+    at_hit = np.zeros(N, dtype=np.uint8)
+    at_hit[ends.ravel()] = 1
+    if cut_nodes is not None:
+        at_hit[sticky] = 1
+    flags_c = wp.empty(C, dtype=wp.int32, device=dev)
+    launch(k.cells_at_nodes_kernel, C, [arrays["cell_nodes"], arrays["cell_alive"], _shared(at_hit, wp.uint8, dev)],
+           [flags_c], dev, threads, min_chunk=_CHEAP)  # fmt: skip
+    candidates = _compact(flags_c, dev, threads)
+    candidates_wp = wp.array(candidates, dtype=wp.int32, device=dev)
+    code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut = np.zeros(E, dtype=np.uint8)
         edge_cut[hits[keep]] = 1
-        split_t[:] = -1.0
-        split_t[hits[keep]] = t_hit[keep]
-        launch(k.cell_codes_kernel, C,
-               [arrays["cell_nodes"], arrays["cell_edges"], arrays["cell_alive"],
-                _shared(edge_cut, wp.uint8, dev), _shared(node_cut, wp.uint8, dev)],
-               [code_wp, changed_wp], dev, threads)  # fmt: skip
-        cells = _compact(changed_wp, dev, threads)
-        cells = cells[cell_parent[cells] < 0]  # pieces of a progressive parent are cut through their parent
-        units = _units(state, cells, code_wp.numpy()[cells], cell_nodes_np, cell_edges_np, edge_nodes_np,
-                       edge_cut, split_t, node_cut)  # fmt: skip
-        cn = units["corners"]
-        rv = _signed_volumes(rest_np, cn)
+        split_t[set_t] = -1.0
+        set_t = hits[keep]
+        split_t[set_t] = t_hit[keep]
+        launch(k.cell_codes_at_kernel, len(candidates),
+               [candidates_wp, arrays["cell_nodes"], arrays["cell_edges"], _shared(edge_cut, wp.uint8, dev),
+                _shared(node_cut, wp.uint8, dev)], [code_wp], dev, threads, min_chunk=8192)  # fmt: skip
+        codes = code_wp.numpy()
+        changed = np.flatnonzero(codes)
+        cells, codes = candidates[changed], codes[changed]
+        if state.children.size:
+            own = state.cell_parent[cells] < 0  # pieces of a progressive parent are cut through their parent
+            cells, codes = cells[own], codes[own]
+        units = _units(state, cells, codes, cell_nodes_np, cell_edges_np, edge_nodes_np, edge_cut, split_t,
+                       node_cut)  # fmt: skip
+        entry, perm, rv, bad = _classify_units(tables, units, structure.node_rest, dev, threads)
         if np.any(rv <= 0):
             c0 = int(np.argmax(rv <= 0))
             raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
                            f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
-        entry = tables.entry[units["edge_code"], units["node_code"]].astype(np.int64)
-        perm = rank_index(cn) if len(cn) else np.zeros(0, dtype=np.int32)
-        bad = entry < 0
-        bad |= (entry >= 0) & (tables.kind[np.maximum(entry, 0)] == "Xp")
-        ok = ~bad & (tables.count[np.maximum(entry, 0), perm] > 1)  # intact entries keep the checked parent
-        if ok.any():
-            bad[ok] = ~_positive(tables, entry[ok], perm[ok], cn[ok], units["t"][ok], rest_np)
         if not bad.any():
             break
         rounds += 1
@@ -360,9 +377,10 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
 
     # -- 3. subdivision ---------------------------------------------------------------------------------
     plan = _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t, node_cut, edge_nodes_np,
-                      rest_np, positions_np)  # fmt: skip
-    kinds, counts = np.unique(tables.kind[entry], return_counts=True) if len(entry) else ((), ())
-    result.tets_split = {str(kd): int(n) for kd, n in zip(kinds, counts) if kd != "uncut"}
+                      np.asarray(structure.node_rest), positions_np, dev, threads)  # fmt: skip
+    per_kind = np.bincount(_table_arrays(tables, dev)["kind_np"][entry], minlength=len(_KIND_NAMES))
+    result.tets_split = {kd: int(per_kind[_KIND_NAMES.index(kd)]) for kd in sorted(_KIND_NAMES)
+                         if kd != "uncut" and per_kind[_KIND_NAMES.index(kd)]}  # fmt: skip
     t3 = time.perf_counter()
     result.seconds["subdivision"] = t3 - t2
 
@@ -388,7 +406,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     # -- 5. garbage collection -------------------------------------------------------------------------
     if collect:
         result.remap = structure.collect_garbage()
-    result.components = int(structure.components().max()) + 1 if structure.cell_count else 0
+    result.components = structure._component_count()
     result.seconds["gc"] = time.perf_counter() - t4
     structure.stats["last_cut"] = result.summary()
     return result
@@ -408,34 +426,48 @@ def _materials(materials) -> np.ndarray | None:
     return np.unique(np.asarray(values, dtype=np.int32))
 
 
-def _positive(tables, entry, perm, cn, t_local, rest) -> np.ndarray:
-    """Whether every sub-tet of each cut tet is positive at the actual split points (rest positions).
+#: table kinds by number (the kernels see numbers)
+_KIND_NAMES = ("uncut", "touch", "Z", "A", "B", "X", "Y", "C", "D", "E", "Xp")
+#: the progressive kinds' numbers (consecutive)
+_PROGRESSIVE = np.array([_KIND_NAMES.index(k) for k in ("C", "D", "E")], dtype=np.int32)
+_table_cache: dict = {}
 
-    ``t_local`` (n, 6): each local edge's split parameter from its local first end (TET_EDGES order).
-    """
-    refs = tables.refs[entry, perm].astype(np.int64)  # (n, S, 4)
-    n = len(entry)
-    pts = np.zeros((n, 29, 3))
-    corner = rest[cn]  # (n, 4, 3)
-    pts[:, :4] = corner
-    for kk in range(4):  # cut nodes sit where their node is
-        pts[:, REF_NODE + 2 * kk] = pts[:, REF_NODE + 2 * kk + 1] = corner[:, kk]
-    for j, (u, v) in enumerate(TET_EDGES):
-        p = corner[:, u] + t_local[:, j, None] * (corner[:, v] - corner[:, u])
-        pts[:, REF_SPLIT + 2 * j] = pts[:, REF_SPLIT + 2 * j + 1] = p
-    for f in range(4):
-        pts[:, REF_FACE + f] = corner[:, TET_FACES[f]].mean(axis=1)
-    pts[:, REF_CELL] = corner.mean(axis=1)
-    valid = refs[..., 0] >= 0
-    r = np.maximum(refs, 0)
-    rows = np.arange(n)[:, None]
-    a, b, c, d = (pts[rows, r[..., i]] for i in range(4))
-    vol = np.einsum("nsj,nsj->ns", np.cross(b - a, c - a), d - a) / 6.0
-    longest = np.sqrt(np.max([((x - y) ** 2).sum(axis=2) for x, y in
-                              ((a, b), (a, c), (a, d), (b, c), (b, d), (c, d))], axis=0))  # fmt: skip
-    # flat: at most ten times the simulator's degenerate volume (so every tet a cut makes can be simulated;
-    # float32 storage would invert a flatter one)
-    return np.all(~valid | (vol > 10.0 * DEGENERATE_VOLUME * longest**3), axis=1)
+
+def _table_arrays(tables, dev) -> dict:
+    """The cut tables as flat int32 Warp arrays on ``dev`` (built once per device), and the kind numbers."""
+    key = (id(tables), str(dev))
+    if key not in _table_cache:
+        kind = np.array([_KIND_NAMES.index(str(k)) for k in tables.kind], dtype=np.int32)
+        flat = {
+            "entry": tables.entry.astype(np.int32).ravel(), "count": tables.count.astype(np.int32).ravel(),
+            "refs": tables.refs.astype(np.int32).ravel(), "kind": kind, "rank": _RANK_LOOKUP.astype(np.int32),
+        }  # fmt: skip
+        arrays = {name: wp.array(v, dtype=wp.int32, device=dev) for name, v in flat.items()}
+        arrays["kind_np"] = kind
+        _table_cache[key] = arrays
+    return _table_cache[key]
+
+
+def _classify_units(tables, units, rest, dev, threads) -> tuple:
+    """Per unit (kernel): table entry (int64), rank permutation (int32), rest volume, bad entry (bool)."""
+    n = len(units["corners"])
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0), np.zeros(0, bool)
+    ta = _table_arrays(tables, dev)
+    inputs = [
+        wp.array(np.ascontiguousarray(units["corners"], dtype=np.int32), dtype=wp.vec4i, device=dev),
+        wp.array(np.ascontiguousarray(units["edge_code"], dtype=np.int32), dtype=wp.int32, device=dev),
+        wp.array(np.ascontiguousarray(units["node_code"], dtype=np.int32), dtype=wp.int32, device=dev),
+        wp.array(np.ascontiguousarray(units["t"], dtype=np.float64).ravel(), dtype=wp.float64, device=dev),
+        _shared(np.asarray(rest), wp.vec3, dev),
+        ta["entry"], ta["count"], ta["refs"], ta["kind"], ta["rank"], _KIND_NAMES.index("Xp"),
+    ]  # fmt: skip
+    entry = wp.empty(n, dtype=wp.int32, device=dev)
+    perm = wp.empty(n, dtype=wp.int32, device=dev)
+    volume = wp.empty(n, dtype=wp.float64, device=dev)
+    bad = wp.empty(n, dtype=wp.int32, device=dev)
+    launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=256)
+    return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
 
 
 class _ParentState:
@@ -457,15 +489,16 @@ class _ParentState:
         self.is_protected = np.zeros(N, dtype=bool)
         self.protected = np.zeros(0, dtype=np.int64)
         self.edges = np.full((pr.count, 6), -1, dtype=np.int64)
-        alive = np.asarray(structure.cell_alive)
-        cp = np.asarray(structure.cell_parent).astype(np.int64)
-        live = pr["alive"].copy()
-        # a piece of an ended record is an ordinary cell
-        self.cell_parent = np.full(len(cp), -1, dtype=np.int64)
-        if pr.count:
+        self.cell_parent = None  # per cell its live record, -1 none (None: no live record at all)
+        self.children = self.active = np.zeros(0, dtype=np.int64)
+        if pr.count and pr["alive"].any():
+            alive = np.asarray(structure.cell_alive)
+            cp = np.asarray(structure.cell_parent).astype(np.int64)
+            live = pr["alive"].copy()
+            # a piece of an ended record is an ordinary cell
             self.cell_parent = np.where((cp >= 0) & live[np.maximum(cp, 0)], cp, -1)
-        self.children = np.flatnonzero(alive & (self.cell_parent >= 0))
-        self.active = np.unique(self.cell_parent[self.children])
+            self.children = np.flatnonzero(alive & (self.cell_parent >= 0))
+            self.active = np.unique(self.cell_parent[self.children])
         if self.children.size:
             self.drop[np.asarray(structure.cell_edges)[self.children].ravel()] = True
             corners = pr["corners"][self.active]
@@ -540,7 +573,8 @@ def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, sp
     bits = (ecode[:, None] >> np.arange(6)) & 1
     new_edges = np.where(bits == 1, ce, -1)
     forward = edge_nodes[ce, 0] == cn[:, TET_EDGES[:, 0]]
-    t = np.where(bits == 1, np.where(forward, split_t[ce], 1.0 - split_t[ce]), -1.0)
+    st = split_t[ce]
+    t = np.where(bits == 1, np.where(forward, st, 1.0 - st), -1.0)
     units = {
         "corners": cn, "edge_code": ecode, "node_code": (codes >> 6).astype(np.int64), "new_edges": new_edges,
         "old_split": np.full((n, 6, 2), -1, dtype=np.int64), "t": t, "parent": np.full(n, -1, dtype=np.int64),
@@ -586,7 +620,8 @@ class _NewNodes:
     def add(self, origin: str, a, b, w) -> np.ndarray:
         """Nodes at ``(1 - w) a + w b`` (rest and current); their ids."""
         a, b, w = np.asarray(a, np.int64), np.asarray(b, np.int64), np.asarray(w, np.float64)
-        r = self.rest[a] + w[:, None] * (self.rest[b] - self.rest[a])
+        ra, rb = self.rest[a].astype(np.float64), self.rest[b].astype(np.float64)  # rest in float64
+        r = ra + w[:, None] * (rb - ra)
         p = self.positions[a] + w[:, None] * (self.positions[b] - self.positions[a])
         return self._push(origin, r, p, np.stack([a, b], axis=1), w)
 
@@ -594,7 +629,7 @@ class _NewNodes:
         """Nodes at the mean of each row of ``corners`` ((M, 3) or (M, 4)); sources: its first two corners."""
         corners = np.asarray(corners, np.int64)
         w = np.full(len(corners), 1.0 / corners.shape[1])
-        r, p = self.rest[corners].mean(axis=1), self.positions[corners].mean(axis=1)
+        r, p = self.rest[corners].astype(np.float64).mean(axis=1), self.positions[corners].mean(axis=1)
         return self._push("front", r, p, corners[:, :2], w)
 
     def _push(self, origin, r, p, sources, w) -> np.ndarray:
@@ -608,77 +643,114 @@ class _NewNodes:
 
 
 def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t, node_cut, edge_nodes, rest,
-               positions) -> dict:  # fmt: skip
-    """New nodes, sub-tets and progressive records of the changed tets (vectorized; module docstring, step 3)."""
+               positions, dev, threads) -> dict:  # fmt: skip
+    """New nodes, sub-tets and progressive records of the changed tets (module docstring, step 3).
+
+    The sub-tets are one flat list, unit by unit in table order (a kernel writes their references and the
+    nodes of their corners and split points); cut-node copies and crack fronts are filled in after.
+    """
     cn = units["corners"]
     n = len(cn)
-    refs = tables.refs[entry, perm].astype(np.int64)  # (n, S, 4)
-    valid = refs[..., 0] >= 0
+    ta = _table_arrays(tables, dev)
+    counts = tables.count[entry, perm].astype(np.int64) if n else np.zeros(0, np.int64)
     new = _NewNodes(len(structure.node_rest), rest, positions)
     pr = structure._parents
     is_parent = units["parent"] >= 0
 
     # split points of this stroke: copy 0 joined to the edge's first node, copy 1 to its second
-    split_ids = np.full((len(edge_nodes), 2), -1, dtype=np.int64)
+    cn32 = np.ascontiguousarray(cn, dtype=np.int32)
+    cn_wp = wp.array(cn32, dtype=wp.vec4i, device=dev)
+    split_of = units["old_split"]  # (n, 6, 2) per unit and local edge, the copy joined to its local first / second end
     if len(cut_edges):
         a, b, t = edge_nodes[cut_edges, 0], edge_nodes[cut_edges, 1], split_t[cut_edges]
-        split_ids[cut_edges, 0] = new.add("split", a, b, t)
-        split_ids[cut_edges, 1] = new.add("split", a, b, t)
-    # per unit and local edge, the copy joined to its local first and second end
-    ne = units["new_edges"]
-    forward = edge_nodes[np.maximum(ne, 0), 0] == cn[:, TET_EDGES[:, 0]]
-    fresh = np.stack([np.where(forward, split_ids[np.maximum(ne, 0), 0], split_ids[np.maximum(ne, 0), 1]),
-                      np.where(forward, split_ids[np.maximum(ne, 0), 1], split_ids[np.maximum(ne, 0), 0])], axis=2)
-    split_of = np.where((ne >= 0)[:, :, None], fresh, units["old_split"])  # (n, 6, 2)
+        ids0 = new.add("split", a, b, t)
+        new.add("split", a, b, t)
+        pos = np.empty(len(edge_nodes), dtype=np.int32)  # only read at the cut edges
+        pos[cut_edges] = np.arange(len(cut_edges), dtype=np.int32)
+        out = np.empty(12 * n, dtype=np.int32)
+        launch(k.unit_splits_kernel, n,
+               [cn_wp, wp.array(np.ascontiguousarray(units["new_edges"], dtype=np.int32).ravel(), dtype=wp.int32,
+                                device=dev),
+                wp.array(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), dtype=wp.int32, device=dev),
+                _shared(edge_nodes, wp.vec2i, dev), _shared(pos, wp.int32, dev), int(ids0[0]), len(cut_edges)],
+               [_out(out, wp.int32, dev)], dev, threads, min_chunk=4096)  # fmt: skip
+        split_of = _back(out, dev).astype(np.int64).reshape(n, 6, 2)
 
-    ids = np.full(refs.shape, -1, dtype=np.int64)
-    rows = np.broadcast_to(np.arange(n)[:, None, None], refs.shape)
-    m = (refs >= 0) & (refs < 4)
-    ids[m] = cn[rows[m], refs[m]]
-    m = (refs >= REF_SPLIT) & (refs < REF_NODE)
-    if m.any():
-        j, end = (refs[m] - REF_SPLIT) // 2, (refs[m] - REF_SPLIT) % 2
-        ids[m] = split_of[rows[m], j, end]
+    # the sub-tets (kernel): rows of unit u from first_row[u]
+    total = int(counts.sum())
+    first_row = np.zeros(n, dtype=np.int32)
+    if n > 1:
+        np.cumsum(counts[:-1], out=first_row[1:])
+    unit_of = np.empty(total, dtype=np.int32)
+    refs = np.empty(4 * total, dtype=np.int32)
+    ids = np.empty(4 * total, dtype=np.int32)
+    if n:
+        launch(k.emit_subtets_kernel, n,
+               [wp.array(entry.astype(np.int32), dtype=wp.int32, device=dev),
+                wp.array(np.ascontiguousarray(perm, dtype=np.int32), dtype=wp.int32, device=dev), cn_wp,
+                wp.array(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), dtype=wp.int32, device=dev),
+                wp.array(first_row, dtype=wp.int32, device=dev), ta["count"], ta["refs"]],
+               [_out(unit_of, wp.int32, dev), _out(refs, wp.int32, dev), _out(ids, wp.int32, dev)], dev, threads,
+               min_chunk=4096)  # fmt: skip
+        unit_of, refs, ids = _back(unit_of, dev), _back(refs, dev).reshape(-1, 4), _back(ids, dev).reshape(-1, 4)
+    else:
+        refs, ids = refs.reshape(-1, 4), ids.reshape(-1, 4)
+    ids = ids.astype(np.int64)
+    kind = ta["kind_np"][entry] if n else np.zeros(0, np.int32)
+    progressive = (kind >= _PROGRESSIVE[0]) & (kind <= _PROGRESSIVE[-1])
+
     # crack fronts: one per fanned face (shared with the tet across it: reused if it exists), one per cell
     face_front = np.full((n, 4), -1, dtype=np.int64)
-    m = (refs >= REF_FACE) & (refs < REF_CELL)
-    if m.any():
-        f = refs[m] - REF_FACE
-        tri = cn[rows[m][:, None], TET_FACES[f]]
-        keys = _triple_keys(tri, len(rest) + len(structure.node_rest))
-        uniq, first, inv = np.unique(keys, return_index=True, return_inverse=True)
-        found = state.front_of(uniq)
-        need = found < 0
-        if need.any():
-            found[need] = new.centres(tri[first[need]])
-        ids[m] = found[inv.ravel()]
-        face_front[rows[m], f] = ids[m]
     centre = np.full(n, -1, dtype=np.int64)
-    m = refs == REF_CELL
-    if m.any():
-        prog = np.flatnonzero(m.any(axis=(1, 2)))
-        old = np.full(len(prog), -1, dtype=np.int64)
-        back = is_parent[prog]
-        old[back] = pr["centre"][units["parent"][prog][back]]
-        need = old < 0
-        if need.any():
-            old[need] = new.centres(cn[prog[need]])
-        centre[prog] = old
-        ids[m] = centre[rows[m]]
+    if progressive.any():
+        prog_rows = np.flatnonzero(progressive[unit_of])
+        sub_refs = refs[prog_rows]
+        m = (sub_refs >= REF_FACE) & (sub_refs < REF_CELL)
+        if m.any():
+            rr, cc = np.nonzero(m)
+            f = sub_refs[rr, cc] - REF_FACE
+            u = unit_of[prog_rows[rr]]
+            tri = cn[u[:, None], TET_FACES[f]]
+            keys = _triple_keys(tri, len(rest) + len(structure.node_rest))
+            uniq, first, inv = np.unique(keys, return_index=True, return_inverse=True)
+            found = state.front_of(uniq)
+            need = found < 0
+            if need.any():
+                found[need] = new.centres(tri[first[need]])
+            got = found[inv.ravel()]
+            ids[prog_rows[rr], cc] = got
+            face_front[u, f] = got
+        m = sub_refs == REF_CELL
+        if m.any():
+            rr, cc = np.nonzero(m)
+            u = unit_of[prog_rows[rr]]
+            prog = np.unique(u)
+            old = np.full(len(prog), -1, dtype=np.int64)
+            back = is_parent[prog]
+            old[back] = pr["centre"][units["parent"][prog][back]]
+            need = old < 0
+            if need.any():
+                old[need] = new.centres(cn[prog[need]])
+            centre[prog] = old
+            ids[prog_rows[rr], cc] = centre[u]
     # cut nodes: one copy per set of sub-tet groups the blade separated
     separated = fronts = np.zeros(0, np.int64)
-    m = (refs >= REF_NODE) & (refs < REF_FACE)
-    if m.any():
-        copies, separated, fronts = _cut_node_copies(structure, cn, refs, ids, new)
-        r = refs[m] - REF_NODE
-        ids[m] = copies[rows[m], r // 2, r % 2]
+    node_rows = np.flatnonzero(((refs >= REF_NODE) & (refs < REF_FACE)).any(axis=1)) if total else np.zeros(0, int)
+    if node_rows.size:
+        separated, fronts = _cut_node_copies(structure, cn, node_rows, unit_of, refs, ids, new, dev, threads)
 
     # cells left exactly as they were (intact codes whose cut nodes kept their id) are not replaced
-    same = ~is_parent & (tables.count[entry, perm] == 1) & np.all(
-        np.sort(ids[:, 0], axis=1) == np.sort(cn, axis=1), axis=1)  # fmt: skip
+    same = ~is_parent & (counts == 1)
+    one = np.flatnonzero(same).astype(np.int32)
+    if one.size:
+        flags = np.empty(len(one), dtype=np.uint8)
+        launch(k.unchanged_kernel, len(one),
+               [wp.array(one, dtype=wp.int32, device=dev), wp.array(first_row, dtype=wp.int32, device=dev),
+                wp.array(ids.astype(np.int32).ravel(), dtype=wp.int32, device=dev), cn_wp],
+               [_out(flags, wp.uint8, dev)], dev, threads, min_chunk=8192)  # fmt: skip
+        same[one] = _back(flags, dev) != 0
     replace = ~same
     # progressive units keep (or get) a record; parents that are no longer progressive end theirs
-    progressive = np.isin(tables.kind[entry], ("C", "D", "E"))
     fresh_rec = progressive & ~is_parent
     new_ids = np.arange(pr.count, pr.count + int(fresh_rec.sum()), dtype=np.int64)
     record = np.where(is_parent, units["parent"], -1)
@@ -692,37 +764,50 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     }  # fmt: skip
     # what goes: replaced cells, and every live piece of a parent split again
     parents_split = units["parent"][is_parent]
-    cp = state.cell_parent
-    children = state.children[np.isin(cp[state.children], parents_split)]
-    remove = np.concatenate([units["cell"][replace & ~is_parent], children]).astype(np.int64)
+    children = np.zeros(0, np.int64)
     material_of = np.asarray(structure.cell_material)
     unit_material = np.where(is_parent, -1, material_of[np.maximum(units["cell"], 0)])
     if is_parent.any():
+        cp = state.cell_parent
+        children = state.children[np.isin(cp[state.children], parents_split)]
         # a parent's material is its pieces' (all the same)
         of_record = np.zeros(pr.count, dtype=material_of.dtype)
         of_record[cp[children]] = material_of[children]
         unit_material[is_parent] = of_record[parents_split]
-    counts = valid[replace].sum(axis=1)
+    remove = np.concatenate([units["cell"][replace & ~is_parent], children]).astype(np.int64)
+    counts_r = counts[replace]
+    rows_r = replace[unit_of] if total else np.zeros(0, bool)
     return {
         "nodes": new.chunks,
         "separated": separated,
         "fronts": fronts,
         "remove": remove,
-        "tets": ids[replace][valid[replace]],
-        "material": np.repeat(unit_material[replace], counts),
-        "parent": np.repeat(record[replace], counts),
+        "tets": ids[rows_r],
+        "material": np.repeat(unit_material[replace], counts_r),
+        "parent": np.repeat(record[replace], counts_r),
         "records": records,
         "new_record_ids": new_ids,
         "ended": parents_split[~progressive[is_parent]].astype(np.int64),
-        "split": (int((counts > 1).sum()), int(counts[counts > 1].sum())),
+        "split": (int((counts_r > 1).sum()), int(counts_r[counts_r > 1].sum())),
         "sources": np.concatenate(new.sources).astype(np.int32) if new.sources else np.zeros((0, 2), np.int32),
         "weights": np.concatenate(new.weights).astype(np.float32) if new.weights else np.zeros(0, np.float32),
     }
 
 
-def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(n, 4, 2) global node of group ``g`` of corner ``k`` of each changed tet (-1 where unused); the cut nodes
-    the blade separated (duplicated); those whose star stayed joined (crack fronts).
+def _out(values: np.ndarray, dtype, device) -> wp.array:
+    """A kernel output array: ``values``' own memory on the CPU, a device array elsewhere (read back by _back)."""
+    if device.is_cuda:
+        return wp.empty(len(values), dtype=dtype, device=device)
+    return wp.array(values, dtype=dtype, device=device, copy=False)
+
+
+def _back(arr: wp.array | np.ndarray, device) -> np.ndarray:
+    return arr if isinstance(arr, np.ndarray) else arr.numpy()
+
+
+def _cut_node_copies(structure, cn, node_rows, unit_of, refs, ids, new: _NewNodes, dev, threads) -> tuple:
+    """Fill in the cut-node copies of the sub-tets ``node_rows`` (rows of ``ids``, in place); return the cut
+    nodes the blade separated (duplicated) and those whose star stayed joined (crack fronts).
 
     Each (tet, corner, group) is a provisional copy. Two sub-tets (of any
     changed tets, partly cut records included) that share a face at a cut
@@ -732,64 +817,74 @@ def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarr
     shared by no sub-tet of the other side. Each connected set of a node's
     copies is one global copy, the first (lowest element) keeping the node's
     own id.
+
+    Kernels: one thread per sub-tet lists its faces at cut nodes; one thread
+    pairs equal faces through a hash table and joins their copies (a
+    sequential union-find); slivers on the sweep are settled on the host.
     """
     n = len(cn)
-    # only the tets that hold a cut node, and only as many sub-tet slots as the fullest uses
-    holds = ((refs >= REF_NODE) & (refs < REF_FACE)).any(axis=(1, 2))
-    sel = np.flatnonzero(holds)
-    width = max(int((refs[sel, :, 0] >= 0).sum(axis=1).max()) if sel.size else 1, 1)
-    refs_s, ids_s = refs[sel, :width], ids[sel, :width]
-    valid = refs_s[..., 0] >= 0  # (n', S')
-    m = (refs_s >= REF_NODE) & (refs_s < REF_FACE)  # (n', S', 4)
-    rows = np.broadcast_to(sel[:, None, None], refs_s.shape)
-    r = np.where(m, refs_s - REF_NODE, 0)
-    elem = np.where(m, (rows * 4 + r // 2) * 2 + r % 2, -1)
-    ident = np.where(m, cn[rows, r // 2], ids_s)  # the node each corner stands for
-    used = np.zeros(n * 8, dtype=bool)
-    used[elem[m]] = True
-    # faces of the sub-tets that touch a cut node's copy; those made of cut nodes only join nothing, except that
-    # a sub-tet whose four corners are all cut nodes (a sliver lying on the sweep, with no side of its own)
-    # joins the neighbour across its first shared face, so it is neither left alone nor a bridge
-    fi, fp = ident[:, :, TET_FACES], elem[:, :, TET_FACES]  # (n, S, 4, 3)
-    sub = np.broadcast_to(np.arange(len(sel) * width).reshape(len(sel), -1)[:, :, None], fp.shape[:3])
-    face_no = np.broadcast_to(np.arange(4), fp.shape[:3])
-    on_sweep = (fp >= 0).all(axis=3)
-    sliver_of = ((elem >= 0).all(axis=2) & valid).ravel()  # per sub-tet
-    has = (fp >= 0).any(axis=3) & valid[:, :, None]
-    fi, fp, sub, face_no, on_sweep = fi[has], fp[has], sub[has], face_no[has], on_sweep[has]  # (F, ...)
-    a = b = np.zeros(0, np.int64)
-    if len(fi):
-        order = np.argsort(fi, axis=1)
-        fi = np.take_along_axis(fi, order, axis=1)
-        fp = np.take_along_axis(fp, order, axis=1)
-        keys = _triple_keys(fi, int(fi.max()) + 1)
-        srt = np.argsort(keys, kind="stable")
-        ks = keys[srt]
-        pair = np.flatnonzero(ks[1:] == ks[:-1])  # a face is in at most two sub-tets
-        f1, f2 = srt[pair], srt[pair + 1]
-        keep = ~on_sweep[f1]
-        sw = np.flatnonzero(~keep)
-        if sw.size:
-            # faces on the sweep: only each sliver's first shared one (by its own face number)
-            side_is_sliver = [sliver_of[sub[f][sw]] for f in (f1, f2)]
-            owner = np.concatenate([sub[f1][sw][side_is_sliver[0]], sub[f2][sw][side_is_sliver[1]]])
-            rank = np.concatenate([face_no[f1][sw][side_is_sliver[0]], face_no[f2][sw][side_is_sliver[1]]])
-            which = np.concatenate([sw[side_is_sliver[0]], sw[side_is_sliver[1]]])
-            if owner.size:
-                o = np.lexsort((rank, owner))
-                first = np.r_[True, owner[o][1:] != owner[o][:-1]]
-                keep[which[o[first]]] = True
+    R = len(node_rows)
+    cpu = dev
+    key_base = int(max(int(ids.max()) if ids.size else 0, int(cn.max()) if n else 0)) + 1
+    row_elem = np.empty(4 * R, dtype=np.int32)
+    face_key = np.empty(4 * R, dtype=np.int64)
+    face_elem = np.empty((4 * R, 3), dtype=np.int32)
+    face_flag = np.empty(4 * R, dtype=np.int32)
+    outs = [_out(row_elem, wp.int32, cpu), _out(face_key, wp.int64, cpu), _out(face_elem, wp.vec3i, cpu),
+            _out(face_flag, wp.int32, cpu)]  # fmt: skip
+    launch(k.subtet_faces_kernel, R,
+           [wp.array(node_rows.astype(np.int32), dtype=wp.int32, device=cpu),
+            wp.array(unit_of, dtype=wp.int32, device=cpu), wp.array(refs.ravel(), dtype=wp.int32, device=cpu),
+            wp.array(ids.astype(np.int32).ravel(), dtype=wp.int32, device=cpu),
+            wp.array(np.ascontiguousarray(cn, dtype=np.int32), dtype=wp.vec4i, device=cpu), wp.int64(key_base)],
+           outs, cpu, threads, min_chunk=2048)  # fmt: skip
+    row_elem, face_key, face_elem, face_flag = (_back(a, cpu) for a in (outs[0], outs[1], outs[2], outs[3]))
+    face_elem = face_elem.reshape(-1, 3)
+    # pair equal faces, join copies off the sweep (one thread)
+    size = 1 << max(4, int(8 * R - 1).bit_length())
+    parent = wp.array(np.arange(n * 8, dtype=np.int32), dtype=wp.int32, device=cpu)
+    sweep_pairs = wp.empty(4 * R, dtype=wp.vec2i, device=cpu)
+    sweep_count = wp.zeros(1, dtype=wp.int32, device=cpu)
+    wp.launch(k.pair_faces_kernel, dim=1, device=cpu,
+              inputs=[outs[1], outs[2], outs[3], wp.full(size, -1, dtype=wp.int64, device=cpu),
+                      wp.empty(size, dtype=wp.int32, device=cpu), parent, sweep_pairs, sweep_count])  # fmt: skip
+    ns = int(sweep_count.numpy()[0])
+    a = b = np.zeros(0, np.int32)
+    if ns:
+        pairs = sweep_pairs.numpy()[:ns]
+        f1, f2 = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+        # faces on the sweep: only each sliver's first shared one (by its own face number)
+        sliver_of = (row_elem.reshape(-1, 4) >= 0).all(axis=1)  # per sub-tet (all four corners cut-node copies)
+        side_is_sliver = [sliver_of[f // 4] for f in (f1, f2)]
+        owner = np.concatenate([f1[side_is_sliver[0]] // 4, f2[side_is_sliver[1]] // 4])
+        rank = np.concatenate([f1[side_is_sliver[0]] % 4, f2[side_is_sliver[1]] % 4])
+        which = np.concatenate([np.flatnonzero(side_is_sliver[0]), np.flatnonzero(side_is_sliver[1])])
+        keep = np.zeros(ns, dtype=bool)
+        if owner.size:
+            o = np.lexsort((rank, owner))
+            first = np.r_[True, owner[o][1:] != owner[o][:-1]]
+            keep[which[o[first]]] = True
         f1, f2 = f1[keep], f2[keep]
-        both = (fp[f1] >= 0) & (fp[f2] >= 0)
-        a, b = fp[f1][both], fp[f2][both]
-    labels = _connected(n * 8, a, b, used)
-    out = np.full((n, 4, 2), -1, dtype=np.int64)
+        both = (face_elem[f1] >= 0) & (face_elem[f2] >= 0)
+        a, b = face_elem[f1][both], face_elem[f2][both]
+    # the remaining joins, and every item straight to its root (the lowest item of its set)
+    wp.launch(union_find_kernel, dim=1, device=cpu,
+              inputs=[wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=cpu),
+                      wp.array(np.ascontiguousarray(b, dtype=np.int32), dtype=wp.int32, device=cpu), len(a),
+                      parent])  # fmt: skip
+    roots = parent.numpy()
+    node_ref = row_elem >= 0
+    used = np.zeros(n * 8, dtype=bool)
+    used[row_elem[node_ref]] = True
     elem_ids = np.flatnonzero(used)
+    is_root = np.zeros(n * 8, dtype=bool)
+    is_root[elem_ids] = roots[elem_ids] == elem_ids
+    dense = np.cumsum(is_root) - 1
+    lab = dense[roots[elem_ids]]
     node = cn.reshape(-1)[elem_ids // 2]
-    lab = labels[elem_ids]
     # per node, its distinct sets in order of their lowest element: the first keeps the id
     key = node.astype(np.int64) * (n * 8 + 1) + lab
-    uniq, first, inv = np.unique(key, return_index=True, return_inverse=True)
+    uniq, first, inv = _unique_first(key, len(key))
     set_node = node[first]
     order = np.lexsort((elem_ids[first], set_node))
     rank = np.empty(len(uniq), dtype=np.int64)
@@ -802,9 +897,13 @@ def _cut_node_copies(structure, cn, refs, ids, new: _NewNodes) -> tuple[np.ndarr
     extra = rank > 0
     if extra.any():
         target[extra] = new.add("copy", set_node[extra], set_node[extra], np.zeros(int(extra.sum())))
-    out.reshape(-1)[elem_ids] = target[inv.ravel()]
+    copy_of = np.full(n * 8, -1, dtype=np.int64)
+    copy_of[elem_ids] = target[inv]
+    sub_ids = ids[node_rows]
+    sub_ids[node_ref.reshape(-1, 4)] = copy_of[row_elem[node_ref]]
+    ids[node_rows] = sub_ids
     separated = np.unique(set_node[extra])
     single = np.setdiff1d(np.unique(set_node), separated)
     origin = np.asarray(structure.node_origin)
     fronts = single[(origin[single] == 0) | (origin[single] == 3)]
-    return out, separated, fronts
+    return separated, fronts

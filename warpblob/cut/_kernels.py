@@ -1,18 +1,30 @@
-"""Warp kernels of the cutter: edge-sweep intersection, hit flags, per-tet cut codes."""
+"""Warp kernels of the cutter: edge-sweep intersection, hit flags, per-tet cut codes, the changed tets' table
+entries and positivity, their sub-tets, and the pairing of sub-tet faces at cut nodes."""
 
 from __future__ import annotations
 
 import warp as wp
 
-from ..mesh._structure import vec6i
+from ..mesh._structure import _GOLDEN_WP, vec6i
+from ..mesh._tetmesh import TET_EDGES_WP, TET_FACES_WP
+from ..sim._elements import DEGENERATE_VOLUME
 
 __all__ = [
-    "mark_edges_in_use_kernel",
-    "to_rest_kernel",
+    "cell_codes_at_kernel",
     "cell_codes_kernel",
+    "cells_at_nodes_kernel",
+    "classify_units_kernel",
+    "emit_subtets_kernel",
     "flag_positive_kernel",
+    "intersect_edges_few_kernel",
     "intersect_edges_kernel",
+    "mark_edges_in_use_kernel",
+    "pair_faces_kernel",
     "segment_triangle",
+    "subtet_faces_kernel",
+    "to_rest_kernel",
+    "unchanged_kernel",
+    "unit_splits_kernel",
 ]  # fmt: skip
 
 #: barycentric slack: an edge through a sweep triangle's edge or corner is found by both triangles there
@@ -60,11 +72,14 @@ def intersect_edges_kernel(
     offset: int,
     hit_t: wp.array(dtype=float),
     hit_tri: wp.array(dtype=wp.int32),
+    flags: wp.array(dtype=wp.int32),
 ):
-    """Per edge: its first crossing of the sweep (the lowest triangle index, i.e. the earliest sample)."""
+    """Per edge: its first crossing of the sweep (the lowest triangle index, i.e. the earliest sample); flag 1
+    where it has one."""
     e = wp.tid() + offset
     hit_t[e] = -1.0
     hit_tri[e] = -1
+    flags[e] = 0
     if edge_ok[e] == wp.uint8(0):
         return
     p = positions[edge_nodes[e][0]]
@@ -81,6 +96,44 @@ def intersect_edges_kernel(
                 best_t = t
     hit_t[e] = best_t
     hit_tri[e] = best
+    flags[e] = wp.where(best_t >= 0.0, 1, 0)
+
+
+@wp.kernel(enable_backward=False)
+def intersect_edges_few_kernel(
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    edge_ok: wp.array(dtype=wp.uint8),
+    positions: wp.array(dtype=wp.vec3),
+    lowers: wp.array(dtype=wp.vec3),
+    uppers: wp.array(dtype=wp.vec3),
+    corners: wp.array(dtype=wp.vec3),
+    offset: int,
+    hit_t: wp.array(dtype=float),
+    hit_tri: wp.array(dtype=wp.int32),
+    flags: wp.array(dtype=wp.int32),
+):
+    """:func:`intersect_edges_kernel` for a sweep of a few triangles: each triangle's box (the boxes the BVH
+    holds) against the edge's, in index order, without the tree: the same candidates, the same first hit."""
+    e = wp.tid() + offset
+    hit_t[e] = -1.0
+    hit_tri[e] = -1
+    flags[e] = 0
+    if edge_ok[e] == wp.uint8(0):
+        return
+    p = positions[edge_nodes[e][0]]
+    q = positions[edge_nodes[e][1]]
+    lo = wp.min(p, q)
+    hi = wp.max(p, q)
+    for i in range(lowers.shape[0]):
+        a = lowers[i]
+        b = uppers[i]
+        if not (lo[0] > b[0] or lo[1] > b[1] or lo[2] > b[2] or hi[0] < a[0] or hi[1] < a[1] or hi[2] < a[2]):
+            t = segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
+            if t >= 0.0:
+                hit_t[e] = t
+                hit_tri[e] = i
+                flags[e] = 1
+                return
 
 
 @wp.kernel(enable_backward=False)
@@ -112,6 +165,47 @@ def cell_codes_kernel(
                 value = value | (1 << (6 + k))
     code[c] = value
     changed[c] = wp.where(value != 0, 1, 0)
+
+
+@wp.kernel(enable_backward=False)
+def cells_at_nodes_kernel(
+    cell_nodes: wp.array(dtype=wp.vec4i),
+    cell_alive: wp.array(dtype=wp.uint8),
+    node_mark: wp.array(dtype=wp.uint8),
+    offset: int,
+    flags: wp.array(dtype=wp.int32),
+):
+    """1 for every live cell with a marked node."""
+    c = wp.tid() + offset
+    f = int(0)
+    if cell_alive[c] != wp.uint8(0):
+        for k in range(4):
+            if node_mark[cell_nodes[c][k]] != wp.uint8(0):
+                f = 1
+    flags[c] = f
+
+
+@wp.kernel(enable_backward=False)
+def cell_codes_at_kernel(
+    cells: wp.array(dtype=wp.int32),
+    cell_nodes: wp.array(dtype=wp.vec4i),
+    cell_edges: wp.array(dtype=vec6i),
+    edge_cut: wp.array(dtype=wp.uint8),
+    node_cut: wp.array(dtype=wp.uint8),
+    offset: int,
+    code: wp.array(dtype=wp.int32),
+):
+    """:func:`cell_codes_kernel` for the listed (live) cells only."""
+    i = wp.tid() + offset
+    c = cells[i]
+    value = int(0)
+    for j in range(6):
+        if edge_cut[cell_edges[c][j]] != wp.uint8(0):
+            value = value | (1 << j)
+    for m in range(4):
+        if node_cut[cell_nodes[c][m]] != wp.uint8(0):
+            value = value | (1 << (6 + m))
+    code[i] = value
 
 
 @wp.kernel(enable_backward=False)
@@ -152,3 +246,332 @@ def mark_edges_in_use_kernel(
     if cell_alive[c] != wp.uint8(0):
         for j in range(6):
             in_use[cell_edges[c][j]] = wp.uint8(1)
+
+
+# -- classification of the changed tets: table entry, rank permutation, rest volume, positivity -------------------
+
+#: a sub-tet is flat below this x the cube of its longest edge: ten times the simulator's degenerate volume (so
+#: every tet a cut makes can be simulated; float32 storage would invert a flatter one)
+_FLAT = wp.constant(wp.float64(10.0 * DEGENERATE_VOLUME))
+
+
+@wp.func
+def _corner64(rest: wp.array(dtype=wp.vec3), cn: wp.vec4i, k: int) -> wp.vec3d:
+    p = rest[cn[k]]
+    return wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+
+
+@wp.func
+def _ref_point(rest: wp.array(dtype=wp.vec3), cn: wp.vec4i, t: wp.array(dtype=wp.float64), u: int, r: int) -> wp.vec3d:
+    """Rest position (float64) of reference ``r`` of unit ``u`` (split points at the unit's parameters ``t``)."""
+    if r < 4:
+        return _corner64(rest, cn, r)
+    if r < 16:
+        j = (r - 4) // 2
+        a = _corner64(rest, cn, TET_EDGES_WP[j, 0])
+        b = _corner64(rest, cn, TET_EDGES_WP[j, 1])
+        return a + t[6 * u + j] * (b - a)
+    if r < 24:
+        return _corner64(rest, cn, (r - 16) // 2)
+    if r < 28:
+        f = r - 24
+        s = _corner64(rest, cn, TET_FACES_WP[f, 0]) + _corner64(rest, cn, TET_FACES_WP[f, 1])
+        s = s + _corner64(rest, cn, TET_FACES_WP[f, 2])
+        return s / wp.float64(3.0)
+    s = _corner64(rest, cn, 0) + _corner64(rest, cn, 1)
+    s = s + _corner64(rest, cn, 2)
+    s = s + _corner64(rest, cn, 3)
+    return s / wp.float64(4.0)
+
+
+@wp.func
+def _volume6(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d, d: wp.vec3d) -> wp.float64:
+    return wp.dot(wp.cross(b - a, c - a), d - a) / wp.float64(6.0)
+
+
+@wp.kernel(enable_backward=False)
+def classify_units_kernel(
+    corners: wp.array(dtype=wp.vec4i),
+    edge_code: wp.array(dtype=wp.int32),
+    node_code: wp.array(dtype=wp.int32),
+    t: wp.array(dtype=wp.float64),
+    rest: wp.array(dtype=wp.vec3),
+    table_entry: wp.array(dtype=wp.int32),
+    table_count: wp.array(dtype=wp.int32),
+    table_refs: wp.array(dtype=wp.int32),
+    table_kind: wp.array(dtype=wp.int32),
+    rank_lookup: wp.array(dtype=wp.int32),
+    xp_kind: int,
+    offset: int,
+    entry: wp.array(dtype=wp.int32),
+    perm: wp.array(dtype=wp.int32),
+    rest_volume: wp.array(dtype=wp.float64),
+    bad: wp.array(dtype=wp.int32),
+):
+    """Per changed tet: its table entry and rank permutation, its rest volume, and whether its entry is bad
+    (a code the tables lack, the progressive code with a cut node, or a sub-tet that is not positive at the
+    actual split points: flat below ``_FLAT`` x its longest edge cubed)."""
+    u = wp.tid() + offset
+    cn = corners[u]
+    code = int(0)
+    for k in range(4):
+        rank = int(0)
+        for m in range(4):
+            if cn[m] < cn[k]:
+                rank += 1
+        code += rank << (2 * k)
+    p = rank_lookup[code]
+    e = table_entry[edge_code[u] * 16 + node_code[u]]
+    entry[u] = e
+    perm[u] = p
+    rest_volume[u] = _volume6(_corner64(rest, cn, 0), _corner64(rest, cn, 1), _corner64(rest, cn, 2),
+                              _corner64(rest, cn, 3))  # fmt: skip
+    flag = int(0)
+    if e < 0:  # noqa: SIM114 (a kernel does not short-circuit: table_kind[-1] would be read)
+        flag = 1
+    elif table_kind[e] == xp_kind:
+        flag = 1
+    else:
+        n = table_count[e * 24 + p]
+        if n > 1:
+            for s in range(n):
+                base = ((e * 24 + p) * 16 + s) * 4
+                a = _ref_point(rest, cn, t, u, table_refs[base])
+                b = _ref_point(rest, cn, t, u, table_refs[base + 1])
+                c = _ref_point(rest, cn, t, u, table_refs[base + 2])
+                d = _ref_point(rest, cn, t, u, table_refs[base + 3])
+                vol = _volume6(a, b, c, d)
+                longest = wp.max(wp.max(wp.max(wp.length_sq(a - b), wp.length_sq(a - c)),
+                                        wp.max(wp.length_sq(a - d), wp.length_sq(b - c))),
+                                 wp.max(wp.length_sq(b - d), wp.length_sq(c - d)))  # fmt: skip
+                longest = wp.sqrt(longest)
+                if not (vol > _FLAT * wp.pow(longest, wp.float64(3.0))):
+                    flag = 1
+    bad[u] = flag
+
+
+# -- subdivision: sub-tets from the tables, the faces at cut nodes ----------------------------------------------
+
+
+@wp.kernel(enable_backward=False)
+def emit_subtets_kernel(
+    entry: wp.array(dtype=wp.int32),
+    perm: wp.array(dtype=wp.int32),
+    corners: wp.array(dtype=wp.vec4i),
+    split_of: wp.array(dtype=wp.int32),
+    first_row: wp.array(dtype=wp.int32),
+    table_count: wp.array(dtype=wp.int32),
+    table_refs: wp.array(dtype=wp.int32),
+    offset: int,
+    unit_of: wp.array(dtype=wp.int32),
+    refs: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+):
+    """The sub-tets of each changed tet, one row each from ``first_row[u]``: their references and the nodes
+    of those that are corners or split points (``split_of``: 12 per unit, copy ``e`` of local edge ``j`` at
+    ``2 j + e``); -1 for the others (cut-node copies, crack fronts), filled on the host."""
+    u = wp.tid() + offset
+    e = entry[u]
+    p = perm[u]
+    cn = corners[u]
+    row0 = first_row[u]
+    for s in range(table_count[e * 24 + p]):
+        row = row0 + s
+        unit_of[row] = u
+        for c in range(4):
+            r = table_refs[((e * 24 + p) * 16 + s) * 4 + c]
+            refs[4 * row + c] = r
+            v = int(-1)
+            if r >= 0 and r < 4:
+                v = cn[r]
+            elif r >= 4 and r < 16:
+                v = split_of[12 * u + r - 4]
+            ids[4 * row + c] = v
+
+
+@wp.kernel(enable_backward=False)
+def subtet_faces_kernel(
+    rows: wp.array(dtype=wp.int32),
+    unit_of: wp.array(dtype=wp.int32),
+    refs: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    corners: wp.array(dtype=wp.vec4i),
+    key_base: wp.int64,
+    offset: int,
+    row_elem: wp.array(dtype=wp.int32),
+    face_key: wp.array(dtype=wp.int64),
+    face_elem: wp.array(dtype=wp.vec3i),
+    face_flag: wp.array(dtype=wp.int32),
+):
+    """The faces of sub-tets that hold a cut node: per corner the node it stands for (a cut node's copy
+    stands for the node) and its provisional copy ``(unit * 4 + k) * 2 + group`` (-1 for other corners),
+    sorted by node; the face key; flags: 1 a corner is a copy, 2 every corner is (the face lies on the
+    sweep). ``row_elem``: the provisional copy at each corner of the sub-tet."""
+    i = wp.tid() + offset
+    row = rows[i]
+    u = unit_of[row]
+    cn = corners[u]
+    for c in range(4):
+        r = refs[4 * row + c]
+        el = int(-1)
+        if r >= 16 and r < 24:
+            el = (u * 4 + (r - 16) // 2) * 2 + (r - 16) % 2
+        row_elem[4 * i + c] = el
+    for f in range(4):
+        n0 = int(0)
+        n1 = int(0)
+        n2 = int(0)
+        e0 = int(0)
+        e1 = int(0)
+        e2 = int(0)
+        for m in range(3):
+            c = TET_FACES_WP[f, m]
+            r = refs[4 * row + c]
+            node = ids[4 * row + c]
+            el = int(-1)
+            if r >= 16 and r < 24:
+                node = cn[(r - 16) // 2]
+                el = (u * 4 + (r - 16) // 2) * 2 + (r - 16) % 2
+            if m == 0:
+                n0 = node
+                e0 = el
+            elif m == 1:
+                n1 = node
+                e1 = el
+            else:
+                n2 = node
+                e2 = el
+        # sort the three by node (distinct), the copies alongside
+        if n0 > n1:
+            n0, n1 = n1, n0
+            e0, e1 = e1, e0
+        if n1 > n2:
+            n1, n2 = n2, n1
+            e1, e2 = e2, e1
+        if n0 > n1:
+            n0, n1 = n1, n0
+            e0, e1 = e1, e0
+        face_key[4 * i + f] = (wp.int64(n0) * key_base + wp.int64(n1)) * key_base + wp.int64(n2)
+        face_elem[4 * i + f] = wp.vec3i(e0, e1, e2)
+        flag = int(0)
+        if e0 >= 0 or e1 >= 0 or e2 >= 0:
+            flag = 1
+        if e0 >= 0 and e1 >= 0 and e2 >= 0:
+            flag = 3
+        face_flag[4 * i + f] = flag
+
+
+@wp.func
+def _root(parent: wp.array(dtype=wp.int32), i: int) -> int:
+    r = i
+    while parent[r] != r:
+        parent[r] = parent[parent[r]]  # path halving
+        r = parent[r]
+    return r
+
+
+@wp.kernel(enable_backward=False)
+def pair_faces_kernel(
+    face_key: wp.array(dtype=wp.int64),
+    face_elem: wp.array(dtype=wp.vec3i),
+    face_flag: wp.array(dtype=wp.int32),
+    table_keys: wp.array(dtype=wp.int64),
+    table_values: wp.array(dtype=wp.int32),
+    parent: wp.array(dtype=wp.int32),
+    sweep_pairs: wp.array(dtype=wp.vec2i),
+    sweep_count: wp.array(dtype=wp.int32),
+):
+    """One thread, faces in order: a face meets its earlier twin (the same key) in an open-addressing table
+    (``table_keys`` all -1, a power of two long). A pair off the sweep joins the two sides' copies of each
+    shared cut node (union by lower root, path halving); a pair on the sweep is listed ``(earlier, later)``
+    for the host (slivers)."""
+    mask = table_keys.shape[0] - 1
+    for i in range(face_key.shape[0]):
+        flag = face_flag[i]
+        if flag != 0:
+            key = face_key[i]
+            s = int((wp.uint64(key) * _GOLDEN_WP) >> wp.uint64(40)) & mask
+            searching = int(1)
+            while searching == 1:
+                k = table_keys[s]
+                if k == wp.int64(-1):
+                    table_keys[s] = key
+                    table_values[s] = i
+                    searching = 0
+                elif k == key:
+                    j = table_values[s]
+                    searching = 0
+                    if face_flag[j] == 3:
+                        n = sweep_count[0]
+                        sweep_pairs[n] = wp.vec2i(j, i)
+                        sweep_count[0] = n + 1
+                    else:
+                        for m in range(3):
+                            a = face_elem[j][m]
+                            b = face_elem[i][m]
+                            if a >= 0 and b >= 0:
+                                ra = _root(parent, a)
+                                rb = _root(parent, b)
+                                if ra < rb:
+                                    parent[rb] = ra
+                                elif rb < ra:
+                                    parent[ra] = rb
+                else:
+                    s = (s + 1) & mask
+
+
+@wp.kernel(enable_backward=False)
+def unit_splits_kernel(
+    corners: wp.array(dtype=wp.vec4i),
+    new_edges: wp.array(dtype=wp.int32),
+    old_split: wp.array(dtype=wp.int32),
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    position: wp.array(dtype=wp.int32),
+    first_id: int,
+    cut_count: int,
+    offset: int,
+    split_of: wp.array(dtype=wp.int32),
+):
+    """Per unit and local edge (12 per unit, ``2 j + e``): the split copy joined to its local first (``e`` 0)
+    and second end. An edge this stroke cuts (``new_edges``, the ``position``-th cut edge) has copies
+    ``first_id + position`` (joined to the edge's first node) and ``first_id + cut_count + position``; the
+    others keep ``old_split``."""
+    u = wp.tid() + offset
+    cn = corners[u]
+    for j in range(6):
+        e = new_edges[6 * u + j]
+        if e >= 0:
+            p = position[e]
+            s0 = first_id + p
+            s1 = first_id + cut_count + p
+            if edge_nodes[e][0] == cn[TET_EDGES_WP[j, 0]]:
+                split_of[12 * u + 2 * j] = s0
+                split_of[12 * u + 2 * j + 1] = s1
+            else:
+                split_of[12 * u + 2 * j] = s1
+                split_of[12 * u + 2 * j + 1] = s0
+        else:
+            split_of[12 * u + 2 * j] = old_split[12 * u + 2 * j]
+            split_of[12 * u + 2 * j + 1] = old_split[12 * u + 2 * j + 1]
+
+
+@wp.kernel(enable_backward=False)
+def unchanged_kernel(
+    units: wp.array(dtype=wp.int32),
+    first_row: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    corners: wp.array(dtype=wp.vec4i),
+    offset: int,
+    same: wp.array(dtype=wp.uint8),
+):
+    """1 where the single sub-tet of unit ``units[i]`` has the unit's own four nodes (in any order)."""
+    i = wp.tid() + offset
+    u = units[i]
+    cn = corners[u]
+    r = first_row[u]
+    flag = wp.uint8(1)
+    for c in range(4):
+        v = ids[4 * r + c]
+        if v != cn[0] and v != cn[1] and v != cn[2] and v != cn[3]:
+            flag = wp.uint8(0)
+    same[i] = flag

@@ -74,6 +74,8 @@ _MASK64 = (1 << 64) - 1
 vec6i = wp.types.vector(length=6, dtype=wp.int32)
 _EMPTY_WP = wp.constant(wp.int64(EMPTY))
 _GOLDEN_WP = wp.constant(wp.uint64(_GOLDEN))
+#: items per piece of a range-split launch of a kernel doing a few loads and stores per item
+_CHEAP = 16384
 
 
 # ---------------------------------------------------------------------------
@@ -353,6 +355,180 @@ def union_find_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=wp.int32), 
 
 
 @wp.kernel(enable_backward=False)
+def components_kernel(
+    face_cells: wp.array(dtype=wp.vec2i),
+    face_alive: wp.array(dtype=wp.uint8),
+    cell_alive: wp.array(dtype=wp.uint8),
+    parent: wp.array(dtype=wp.int32),
+    dense: wp.array(dtype=wp.int32),
+    labels: wp.array(dtype=wp.int32),
+):
+    """Cells joined through every live face with two cells (one thread: union by lower root, path halving),
+    then numbered in the order of their root, the lowest cell of each piece; -1 for dead cells. With an
+    empty ``labels``: only the number of pieces, in ``dense[0]``."""
+    count = parent.shape[0]
+    for i in range(count):
+        parent[i] = i
+    for f in range(face_cells.shape[0]):
+        if face_alive[f] != wp.uint8(0):
+            a = face_cells[f][0]
+            b = face_cells[f][1]
+            if a >= 0 and b >= 0:  # noqa: SIM102 (a kernel does not short-circuit: parent[-1] would be read)
+                if parent[a] != parent[b]:  # the same parent: joined already
+                    ra = _find_root(parent, a)
+                    rb = _find_root(parent, b)
+                    if ra < rb:
+                        parent[rb] = ra
+                    elif rb < ra:
+                        parent[ra] = rb
+    pieces = int(0)
+    if labels.shape[0] == 0:  # the count only: the live roots
+        for i in range(count):
+            if parent[i] == i and cell_alive[i] != wp.uint8(0):
+                pieces += 1
+        dense[0] = pieces
+        return
+    for i in range(count):
+        r = _find_root(parent, i)
+        if r == i and cell_alive[i] != wp.uint8(0):
+            pieces += 1
+        dense[i] = pieces - 1
+        labels[i] = -1
+        if cell_alive[i] != wp.uint8(0):
+            labels[i] = dense[r]
+
+
+@wp.func
+def _triple_key(a: int, b: int, c: int, n: wp.int64) -> wp.int64:
+    """Order-free key of three node ids below ``n`` (``n**3 < 2**63``): the sorted triple in base ``n``."""
+    lo = wp.min(a, wp.min(b, c))
+    hi = wp.max(a, wp.max(b, c))
+    mid = a + b + c - lo - hi
+    return (wp.int64(lo) * n + wp.int64(mid)) * n + wp.int64(hi)
+
+
+@wp.kernel(enable_backward=False)
+def triple_keys_kernel(tri: wp.array(dtype=wp.vec3i), n: wp.int64, offset: int, keys: wp.array(dtype=wp.int64)):
+    i = wp.tid() + offset
+    keys[i] = _triple_key(tri[i][0], tri[i][1], tri[i][2], n)
+
+
+@wp.kernel(enable_backward=False)
+def new_cells_kernel(
+    cells: wp.array(dtype=wp.vec4i),
+    node_alive: wp.array(dtype=wp.uint8),
+    n: wp.int64,
+    table_keys: wp.array(dtype=wp.int64),
+    table_values: wp.array(dtype=wp.int32),
+    bits: int,
+    bound: int,
+    offset: int,
+    bad: wp.array(dtype=wp.int32),
+    face_keys: wp.array(dtype=wp.int64),
+    edges: wp.array(dtype=wp.int32),
+    edge_keys: wp.array(dtype=wp.int64),
+):
+    """Per new cell of a batch edit: 1 if a node is missing or dead, 2 if a node repeats (else 0); the keys
+    of its four faces (``n`` the key base, 0: none); its six edges found in the table (-1 missing) and the
+    key ``max * nodes + min`` of each missing one (-1 found)."""
+    c = wp.tid() + offset
+    t = cells[c]
+    count = node_alive.shape[0]
+    flag = int(0)
+    for k in range(4):
+        if t[k] < 0 or t[k] >= count:
+            flag = 1
+    if flag == 0:
+        for k in range(4):
+            if node_alive[t[k]] == wp.uint8(0):
+                flag = 1
+    if flag == 0:
+        for k in range(4):
+            for m in range(k + 1, 4):
+                if t[k] == t[m]:
+                    flag = 2
+    bad[c] = flag
+    for k in range(4):
+        face_keys[4 * c + k] = wp.int64(-1)
+        if flag == 0 and n > wp.int64(0):
+            face_keys[4 * c + k] = _triple_key(t[TET_FACES_WP[k, 0]], t[TET_FACES_WP[k, 1]], t[TET_FACES_WP[k, 2]], n)
+    for j in range(6):
+        e = int(-1)
+        key = wp.int64(-1)
+        if flag == 0:
+            a = t[TET_EDGES_WP[j, 0]]
+            b = t[TET_EDGES_WP[j, 1]]
+            if wp.max(a, b) < bound:  # a node at or above the bound has no edge yet
+                e = edge_table_find(table_keys, table_values, bits, a, b)
+            if e < 0:
+                key = wp.int64(wp.max(a, b)) * wp.int64(count) + wp.int64(wp.min(a, b))
+        edges[6 * c + j] = e
+        edge_keys[6 * c + j] = key
+
+
+@wp.kernel(enable_backward=False)
+def edge_pairs_kernel(cells: wp.array(dtype=wp.vec4i), uses: wp.array(dtype=wp.int32), offset: int,
+                      pairs: wp.array(dtype=wp.vec2i)):  # fmt: skip
+    """The two nodes of edge use ``u`` (edge ``u % 6`` of new cell ``u // 6``, in its local order)."""
+    i = wp.tid() + offset
+    u = uses[i]
+    t = cells[u // 6]
+    pairs[i] = wp.vec2i(t[TET_EDGES_WP[u % 6, 0]], t[TET_EDGES_WP[u % 6, 1]])
+
+
+@wp.kernel(enable_backward=False)
+def first_use_kernel(inverse: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32)):
+    """``first[g]``: the lowest ``i`` with ``inverse[i] == g`` (``first`` starts at a large value). Not
+    range-split: one CPU thread in order, or CUDA's atomics."""
+    i = wp.tid()
+    wp.atomic_min(first, inverse[i], i)
+
+
+@wp.kernel(enable_backward=False)
+def new_faces_kernel(
+    cells: wp.array(dtype=wp.vec4i),
+    cell_edges: wp.array(dtype=vec6i),
+    use: wp.array(dtype=wp.int32),
+    offset: int,
+    face_nodes: wp.array(dtype=wp.vec3i),
+    face_edges: wp.array(dtype=wp.vec3i),
+):
+    """Nodes and edges of each created face from its first use (face ``k`` of a new cell: oriented as there;
+    edge ``j`` joins its nodes ``j`` and ``j + 1``)."""
+    i = wp.tid() + offset
+    u = use[i]
+    c = u // 4
+    k = u - 4 * c
+    t = cells[c]
+    l0 = TET_FACES_WP[k, 0]
+    l1 = TET_FACES_WP[k, 1]
+    l2 = TET_FACES_WP[k, 2]
+    face_nodes[i] = wp.vec3i(t[l0], t[l1], t[l2])
+    ce = cell_edges[c]
+    face_edges[i] = wp.vec3i(
+        ce[TET_LOCAL_EDGE_WP[l0, l1]], ce[TET_LOCAL_EDGE_WP[l1, l2]], ce[TET_LOCAL_EDGE_WP[l2, l0]]
+    )
+
+
+@wp.kernel(enable_backward=False)
+def link_new_cells_kernel(
+    cell_faces: wp.array(dtype=wp.int32),
+    inverse: wp.array(dtype=wp.int32),
+    first: wp.array(dtype=wp.int32),
+    taken: wp.array(dtype=wp.int32),
+    first_cell: int,
+    offset: int,
+    face_cells: wp.array(dtype=wp.int32),
+):
+    """Each use of a face by a new cell takes the face's next free slot: after its kept cell (``taken``),
+    the face's first new use, then its second (``face_cells`` flat: two slots per face)."""
+    i = wp.tid() + offset
+    g = inverse[i]
+    slot = wp.where(first[g] == i, 0, 1) + taken[g]
+    face_cells[2 * cell_faces[i] + slot] = first_cell + i // 4
+
+
+@wp.kernel(enable_backward=False)
 def find_edges_kernel(
     keys: wp.array(dtype=wp.int64),
     values: wp.array(dtype=wp.int32),
@@ -440,6 +616,26 @@ def _face_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
     return inverse.astype(np.int64).ravel()
 
 
+def _unique_first(keys: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(keys, return_index=True, return_inverse=True)`` of non-negative int64 keys, by one value
+    sort of ``key << b | position`` where that fits 63 bits (a value sort is several times faster than
+    the argsort ``np.unique`` needs)."""
+    bits = max(int(count - 1).bit_length(), 1)
+    top = int(keys.max()) if len(keys) else 0
+    if len(keys) == 0 or top.bit_length() + bits > 62:
+        uniq, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        return uniq, first, inverse.ravel()
+    packed = np.sort((keys << bits) | np.arange(len(keys), dtype=np.int64))
+    k = packed >> bits
+    pos = packed & ((1 << bits) - 1)
+    heads = np.empty(len(k), dtype=bool)
+    heads[0] = True
+    np.not_equal(k[1:], k[:-1], out=heads[1:])
+    inverse = np.empty(len(k), dtype=np.int64)
+    inverse[pos] = np.cumsum(heads) - 1
+    return k[heads], pos[heads], inverse
+
+
 def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> np.ndarray:
     """Component labels of ``count`` items joined by pairs (a, b), numbered by lowest item; -1 where not alive.
 
@@ -485,7 +681,11 @@ def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
 
 
 class _Store:
-    """One entity kind as structure of arrays: slots ``[0, count)`` in use, capacity doubling."""
+    """One entity kind as structure of arrays: slots ``[0, count)`` in use, capacity doubling.
+
+    Slots past ``count`` are not initialized: every slot gets its values (or its column's fill) when it is
+    taken, so growing copies only the slots in use and never writes the spare ones.
+    """
 
     def __init__(self, columns: dict):
         self.columns = columns  # name -> (trailing shape, dtype, fill)
@@ -500,22 +700,26 @@ class _Store:
         n = self.count = len(arrays["alive"])
         capacity = n + n // 8 + 16
         for name, (shape, dt, fill) in self.columns.items():
-            column = np.full((capacity, *shape), fill, dtype=dt)
+            column = np.empty((capacity, *shape), dtype=dt)
             if name in arrays:
                 column[:n] = np.asarray(arrays[name], dtype=dt).reshape(n, *shape)  # a copy: we own it
+            else:
+                column[:n] = fill
             self.arrays[name] = column
+
+    def _grow(self, size: int) -> None:
+        for name, (shape, dt, _) in self.columns.items():
+            grown = np.empty((size, *shape), dtype=dt)
+            grown[: self.count] = self.arrays[name][: self.count]
+            self.arrays[name] = grown
 
     def extend(self, n: int, **values) -> np.ndarray:
         """Append ``n`` slots at once (columns given as arrays of ``n`` rows, the rest filled); their indices."""
         start, capacity = self.count, len(self.arrays["alive"])
         if start + n > capacity:
-            size = max(16, 2 * capacity, start + n)
-            for name, (shape, dt, fill) in self.columns.items():
-                grown = np.full((size, *shape), fill, dtype=dt)
-                grown[:capacity] = self.arrays[name]
-                self.arrays[name] = grown
-        for name, value in values.items():
-            self.arrays[name][start : start + n] = value
+            self._grow(max(16, 2 * capacity, start + n))
+        for name, (_, _, fill) in self.columns.items():
+            self.arrays[name][start : start + n] = values.get(name, fill)
         self.arrays["alive"][start : start + n] = True
         self.count = start + n
         return np.arange(start, start + n, dtype=np.int32)
@@ -524,12 +728,9 @@ class _Store:
         i = self.count
         capacity = len(self.arrays["alive"])
         if i == capacity:
-            for name, (shape, dt, fill) in self.columns.items():
-                grown = np.full((max(16, 2 * capacity), *shape), fill, dtype=dt)
-                grown[:capacity] = self.arrays[name]
-                self.arrays[name] = grown
-        for name, value in values.items():
-            self.arrays[name][i] = value
+            self._grow(max(16, 2 * capacity))
+        for name, (_, _, fill) in self.columns.items():
+            self.arrays[name][i] = values.get(name, fill)
         self.arrays["alive"][i] = True
         self.count = i + 1
         return i
@@ -734,6 +935,7 @@ class TetStructure:
         self._table_values = np.full(16, EMPTY, dtype=np.int32)
         self._table_bits = 4
         self._table_used = 0  # live keys plus deleted slots
+        self._table_node_bound = 0  # every node of a key in the table is below this (a node above has no edge)
         self._clear_links()
 
     def _clear_links(self) -> None:
@@ -861,6 +1063,8 @@ class TetStructure:
         live = int(np.count_nonzero(edges["alive"]))
         self._table_keys, self._table_values, self._table_bits = _build_table(edge_nodes, edge_alive, live, dev)
         self._table_used = live
+        nodes = edges["nodes"]
+        self._table_node_bound = int(nodes.max()) + 1 if len(nodes) else 0
 
     # -- array views ----------------------------------------------------------
 
@@ -1106,6 +1310,7 @@ class TetStructure:
             self._table_used += 1
         self._table_keys[s] = key
         self._table_values[s] = edge
+        self._table_node_bound = max(self._table_node_bound, (key >> 32) + 1)
 
     def _table_remove(self, key: int) -> None:
         mask = (1 << self._table_bits) - 1
@@ -1355,11 +1560,14 @@ class TetStructure:
         return ids
 
     def replace_cells(self, remove, nodes, material, *, parent=None) -> np.ndarray:
-        """Remove cells and insert others in one batch (vectorized; the cutting path).
+        """Remove cells and insert others in one batch (kernels and vectorized numpy; the cutting path).
 
         Faces of the new cells that coincide with faces of the removed cells
-        are reused (their cell slots re-linked), the others are created, and
-        so are missing edges; removed cells are pending until
+        are reused (their cell slots re-linked), the others are created
+        (numbered in the order of their keys), and so are missing edges
+        (likewise; an edge at a node newer than every edge is not looked up);
+        a kernel per new cell validates it, keys its faces and finds its
+        edges in the table; removed cells are pending until
         :meth:`collect_garbage`, which also purges the faces, edges and nodes
         no longer used. Validated first: on an error nothing has changed.
         Fires one event per kind and action with the array of indices
@@ -1383,39 +1591,72 @@ class TetStructure:
         """
         st = self._stores
         cells, faces = st["cell"], st["face"]
+        cpu = wp.get_device("cpu")
         remove = np.asarray(remove, dtype=np.int64).ravel()
         if remove.size and (remove.min() < 0 or remove.max() >= cells.count):
             raise WarpblobError(f"TetStructure.replace_cells: cell index out of range in {remove.tolist()[:8]}")
-        if remove.size and (not cells["alive"][remove].all() or len(np.unique(remove)) != len(remove)):
+        if remove.size and (not cells["alive"][remove].all() or not (
+                np.all(remove[1:] > remove[:-1]) or len(np.unique(remove)) == len(remove))):  # fmt: skip
             raise WarpblobError("TetStructure.replace_cells: the cells to remove must be live and distinct")
         new = np.asarray(nodes, dtype=np.int64).reshape(-1, 4)
         C = len(new)
         mat = np.broadcast_to(np.asarray(material, dtype=np.int32), (C,))
         N = st["node"].count
-        if C and (new.min() < 0 or new.max() >= N or not st["node"]["alive"][new].all()):
+        if C and (new.min() < 0 or new.max() >= N):
             raise WarpblobError("TetStructure.replace_cells: a new cell names a missing or removed node")
-        srt = np.sort(new, axis=1)
-        if C and np.any(srt[:, 1:] == srt[:, :-1]):
-            bad = int(np.flatnonzero(np.any(srt[:, 1:] == srt[:, :-1], axis=1))[0])
-            raise WarpblobError(f"TetStructure.replace_cells: new cell {bad} repeats a node: {new[bad].tolist()}")
+        new = np.ascontiguousarray(new, dtype=np.int32)
+        # per new cell (kernel): validity, face keys, the six edges found in the table and the missing ones' keys
+        key_base = max(N, 1) if N < 1 << 21 else 0
+        bad = np.empty(C, dtype=np.int32)
+        new_keys = np.empty(4 * C, dtype=np.int64)
+        found = np.empty(6 * C, dtype=np.int32)
+        edge_keys = np.empty(6 * C, dtype=np.int64)
+        new_wp = wp.array(new, dtype=wp.vec4i, device=cpu, copy=False)
+        table = [wp.array(self._table_keys, dtype=wp.int64, device=cpu, copy=False),
+                 wp.array(self._table_values, dtype=wp.int32, device=cpu, copy=False), self._table_bits,
+                 self._table_node_bound]  # fmt: skip
+        launch(new_cells_kernel, C,
+               [new_wp, wp.array(st["node"]["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+                wp.int64(key_base), *table],
+               [wp.array(a, dtype=t, device=cpu, copy=False) for a, t in
+                ((bad, wp.int32), (new_keys, wp.int64), (found, wp.int32), (edge_keys, wp.int64))], cpu)  # fmt: skip
+        if C and bad.any():
+            if np.any(bad == 1):
+                raise WarpblobError("TetStructure.replace_cells: a new cell names a missing or removed node")
+            c = int(np.flatnonzero(bad)[0])
+            raise WarpblobError(f"TetStructure.replace_cells: new cell {c} repeats a node: {new[c].tolist()}")
 
-        old_faces = np.unique(cells["faces"][remove]) if remove.size else np.zeros(0, dtype=np.int64)
+        if remove.size:  # the faces of the removed cells, ascending (marks: no sort)
+            marked = np.zeros(faces.count, dtype=bool)
+            marked[cells["faces"][remove].ravel()] = True
+            old_faces = np.flatnonzero(marked)
+        else:
+            old_faces = np.zeros(0, dtype=np.int64)
         slots = faces["cells"][old_faces].copy()
-        slots[np.isin(slots, remove)] = -1
-        slots = np.sort(slots, axis=1)[:, ::-1]  # the kept cell (if any) first
-        new_faces_nodes = new[:, TET_FACES].reshape(-1, 3)  # (4C, 3) in each cell's face order
-        keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new_faces_nodes]), N)
+        gone = np.zeros(cells.count, dtype=bool)
+        gone[remove] = True
+        slots[(slots >= 0) & gone[np.maximum(slots, 0)]] = -1
+        slots = np.stack([slots.max(axis=1), slots.min(axis=1)], axis=1)  # the kept cell (if any) first
+        if key_base:
+            old_keys = np.empty(len(old_faces), dtype=np.int64)
+            launch(triple_keys_kernel, len(old_faces),
+                   [wp.array(np.ascontiguousarray(faces["nodes"][old_faces]), dtype=wp.vec3i, device=cpu),
+                    wp.int64(key_base)], [wp.array(old_keys, dtype=wp.int64, device=cpu, copy=False)], cpu,
+                   min_chunk=_CHEAP)  # fmt: skip
+            keys = np.concatenate([old_keys, new_keys])
+        else:
+            keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new[:, TET_FACES].reshape(-1, 3)]), N)
         uniq, inverse = np.unique(keys, return_inverse=True)
-        inverse = inverse.ravel()
+        inverse = inverse.ravel().astype(np.int32)
         face_of = np.full(len(uniq), -1, dtype=np.int64)
         face_of[inverse[: len(old_faces)]] = old_faces
-        taken = np.zeros(len(uniq), dtype=np.int64)
+        taken = np.zeros(len(uniq), dtype=np.int32)
         taken[inverse[: len(old_faces)]] = (slots >= 0).sum(axis=1)
         inv_new = inverse[len(old_faces) :]
         uses = np.bincount(inv_new, minlength=len(uniq))
         if np.any(taken + uses > 2):
             u = int(np.flatnonzero(taken + uses > 2)[0])
-            f = new_faces_nodes[np.flatnonzero(inv_new == u)[0]].tolist()
+            f = new[np.flatnonzero(inv_new == u)[0] // 4][TET_FACES[np.flatnonzero(inv_new == u)[0] % 4]].tolist()
             raise WarpblobError(f"TetStructure.replace_cells: face {f} would have {taken[u] + uses[u]} cells")
 
         # -- commit -------------------------------------------------------------------------------
@@ -1426,47 +1667,55 @@ class TetStructure:
         if remove.size:
             self._emit("cell", "remove", remove.astype(np.int32))
 
-        # edges: the new cells' six, found in the table or appended
-        pairs = new[:, TET_EDGES].reshape(-1, 2)
-        found = self.find_edges(pairs, device="cpu") if C else np.zeros(0, dtype=np.int32)
-        missing = found < 0
-        if missing.any():
-            mk = np.maximum(pairs[missing, 0], pairs[missing, 1]) * N + np.minimum(pairs[missing, 0], pairs[missing, 1])
-            mk_uniq, first, mk_inv = np.unique(mk, return_index=True, return_inverse=True)
-            edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs[missing][first])
+        # edges: the new cells' six, found in the table or appended (numbered in key order, oriented by first use)
+        missing = np.flatnonzero(found < 0)
+        if missing.size:
+            mk = edge_keys[missing]
+            mk_uniq, first, mk_inv = _unique_first(mk, len(missing))
+            pairs = np.empty((len(first), 2), dtype=np.int32)
+            launch(edge_pairs_kernel, len(first),
+                   [new_wp, wp.array(missing[first].astype(np.int32), dtype=wp.int32, device=cpu)],
+                   [wp.array(pairs, dtype=wp.vec2i, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
+            edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs)
             found[missing] = edge_ids[mk_inv]
             self._table_add(edge_ids)
             self._emit("edge", "insert", edge_ids)
         cell_edges = found.reshape(C, 6)
 
-        # faces: reuse or create (oriented by the first new cell that has it)
+        # faces: reuse or create (numbered in key order, oriented by the first new cell that has it)
+        first_use = np.full(len(uniq), np.iinfo(np.int32).max, dtype=np.int32)
+        if C:
+            wp.launch(first_use_kernel, dim=4 * C, device=cpu,
+                      inputs=[wp.array(inv_new, dtype=wp.int32, device=cpu, copy=False),
+                              wp.array(first_use, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
         create = np.flatnonzero(face_of < 0)
         if create.size:
-            first_use = np.full(len(uniq), -1, dtype=np.int64)
-            order = np.argsort(inv_new, kind="stable")
-            heads = np.r_[True, inv_new[order][1:] != inv_new[order][:-1]] if len(order) else np.zeros(0, bool)
-            first_use[inv_new[order][heads]] = order[heads]
-            use = first_use[create]  # index into the (C, 4) faces of the new cells
-            fn = new_faces_nodes[use]
-            # face edge j joins its nodes j, j+1: read it from the cell's six edges, no lookup
-            fe = cell_edges[use // 4][np.arange(len(use))[:, None], _FACE_EDGE_SLOTS[use % 4]]
+            use = np.ascontiguousarray(first_use[create])  # index into the (C, 4) faces of the new cells
+            fn = np.empty((len(use), 3), dtype=np.int32)
+            fe = np.empty((len(use), 3), dtype=np.int32)
+            launch(new_faces_kernel, len(use),
+                   [new_wp, wp.array(cell_edges, dtype=vec6i, device=cpu, copy=False),
+                    wp.array(use, dtype=wp.int32, device=cpu, copy=False)],
+                   [wp.array(fn, dtype=wp.vec3i, device=cpu, copy=False),
+                    wp.array(fe, dtype=wp.vec3i, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
             face_ids = faces.extend(len(create), nodes=fn, edges=fe)
             face_of[create] = face_ids
             self._emit("face", "insert", face_ids)
-        cell_faces = face_of[inv_new].reshape(C, 4)
+        cell_faces = face_of[inv_new].astype(np.int32)
 
         par = np.full(C, -1, dtype=np.int32) if parent is None else np.broadcast_to(np.asarray(parent, np.int32), (C,))
-        cell_ids = cells.extend(C, nodes=new, faces=cell_faces, edges=cell_edges, material=mat, parent=par)
+        cell_ids = cells.extend(C, nodes=new, faces=cell_faces.reshape(C, 4), edges=cell_edges, material=mat,
+                                parent=par)  # fmt: skip
         # link: each use takes the next free slot of its face (kept cells first)
-        f_flat = cell_faces.ravel()
-        order = np.argsort(f_flat, kind="stable")
-        fs = f_flat[order]
-        starts = np.r_[0, np.flatnonzero(fs[1:] != fs[:-1]) + 1] if len(fs) else np.zeros(0, np.int64)
-        rank = np.arange(len(fs)) - np.repeat(starts, np.diff(np.r_[starts, len(fs)]))
-        face_cells = faces.arrays["cells"]  # the extend above may have grown it
-        slot = rank + (face_cells[fs, 0] >= 0)
-        face_cells[fs, slot] = np.repeat(cell_ids, 4)[order]
         if C:
+            face_cells = faces.arrays["cells"]  # the extend above may have grown it
+            launch(link_new_cells_kernel, 4 * C,
+                   [wp.array(cell_faces, dtype=wp.int32, device=cpu, copy=False),
+                    wp.array(inv_new, dtype=wp.int32, device=cpu, copy=False),
+                    wp.array(first_use, dtype=wp.int32, device=cpu, copy=False),
+                    wp.array(taken, dtype=wp.int32, device=cpu, copy=False), int(cell_ids[0])],
+                   [wp.array(face_cells.reshape(-1), dtype=wp.int32, device=cpu, copy=False)], cpu,
+                   min_chunk=_CHEAP)  # fmt: skip
             self._emit("cell", "insert", cell_ids)
         self._links_dirty = True
         self._links_stale = True
@@ -1487,6 +1736,14 @@ class TetStructure:
         if 2 * (self._table_used + len(edge_ids)) > len(self._table_keys):
             self._build_table(wp.get_device("cpu"))
             return
+        if len(edge_ids):
+            ids = np.asarray(edge_ids, dtype=np.int64)
+            nodes = self._stores["edge"]["nodes"]
+            if ids[-1] - ids[0] == len(ids) - 1:  # a run (a batch just appended): a slice, no gather
+                top = int(nodes[ids[0] : ids[-1] + 1].max()) + 1
+            else:
+                top = int(nodes[ids].max()) + 1
+            self._table_node_bound = max(self._table_node_bound, top)
         # the kernel writes the table's own memory (no copy either way)
         cpu = wp.get_device("cpu")
         keys = wp.array(self._table_keys, dtype=wp.int64, device=cpu, copy=False)
@@ -1499,18 +1756,37 @@ class TetStructure:
         """(C,) int32 connected piece of every cell slot (cells joined through shared faces), -1 for dead cells.
 
         Pieces are numbered 0, 1, ... in the order of their lowest cell.
-        Union by shared faces with pointer jumping (vectorized, O(log n) rounds).
+        A sequential union-find over the shared faces in one Warp kernel thread.
 
         Example:
             >>> from warpblob.mesh import box_tetmesh
             >>> int(TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (2, 2, 2))).components().max()) + 1
             1
         """
+        labels, _ = self._components(True)
+        return labels
+
+    def _component_count(self) -> int:
+        """The number of connected pieces (:meth:`components` without the labels)."""
+        return self._components(False)[1]
+
+    def _components(self, label: bool) -> tuple[np.ndarray, int]:
         st = self._stores
-        alive = st["cell"]["alive"]
-        fc = st["face"]["cells"]
-        both = st["face"]["alive"] & (fc[:, 0] >= 0) & (fc[:, 1] >= 0)
-        return _connected(st["cell"].count, fc[both, 0], fc[both, 1], alive)
+        cells, faces = st["cell"], st["face"]
+        cpu = wp.get_device("cpu")
+        C = cells.count
+        labels = np.empty(C if label else 0, dtype=np.int32)
+        if C == 0:
+            return labels, 0
+        dense = np.empty(C, dtype=np.int32)
+        # the kernel reads the structure's own memory; one thread (a sequential union-find: near-linear, exact)
+        wp.launch(components_kernel, dim=1, device=cpu, inputs=[
+            wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False),
+            wp.array(faces["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+            wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+            wp.empty(C, dtype=wp.int32, device=cpu), wp.array(dense, dtype=wp.int32, device=cpu, copy=False),
+            wp.array(labels, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
+        return labels, int(dense[0]) if not label else (int(dense[-1]) + 1)
 
     def surface(self, *, model=None, rest: bool = False):
         """The boundary of the live cells as a :class:`~warpblob.mesh.SurfaceMesh`, cut faces marked.
