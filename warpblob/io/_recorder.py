@@ -42,9 +42,10 @@ Materials: one ``UsdShade.Material`` per material id (a
 per prim, not through GeomSubsets: one material per Mesh is what every
 viewer draws, and a GeomSubset's face indices cannot follow a topology that
 changes in Blender's importer. The tissue colour is the ``material_colors``
-given to :meth:`Recorder.add`, else the mean of the model's colour field over
-that material's boundary vertices when the material first shows, else a
-fixed palette.
+given to :meth:`Recorder.add` (its meshes' displayColor then that colour
+too: a layered mesh recorded with one model's colour field shows its
+layers), else the mean of the model's colour field over that material's
+boundary vertices when the material first shows, else a fixed palette.
 
 Stage metadata: upAxis, metersPerUnit, timeCodesPerSecond and
 framesPerSecond, start and end codes, the default prim.
@@ -208,6 +209,7 @@ class _VolumeTrack:
         self.structure = source if isinstance(source, TetStructure) else getattr(source, "_structure", None)
         self.model = model if model is not None else getattr(source, "model", None)
         self.colors = {} if material_colors is None else _color_table(material_colors)
+        self.given = set(self.colors)  # tissues whose colour was given: their meshes are drawn in it
         self.volume = UsdGeom.TetMesh.Define(stage, base + "/Volume")
         self.volume.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
         self.points, self.extent = self.volume.CreatePointsAttr(), self.volume.CreateExtentAttr()
@@ -331,7 +333,8 @@ class _VolumeTrack:
                     color = self._tissue_color(m, color_of, faces_global[rows])
                     self.rec.looks.bind(part.mesh.GetPrim(), m, color)
                 used, local = np.unique(faces_global[rows], return_inverse=True)
-                written += part.topology(code, used.astype(np.int32), local.reshape(-1, 3), color_of[used],
+                shade = np.tile(self.colors[m], (len(used), 1)) if m in self.given else color_of[used]
+                written += part.topology(code, used.astype(np.int32), local.reshape(-1, 3), shade,
                                          surf.is_cut[rows])  # fmt: skip
                 _set_visible(part.mesh, part, True, code, part_first)
             for m, part in piece.meshes.items():

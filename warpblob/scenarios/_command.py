@@ -22,7 +22,7 @@ _SETTINGS = {
     "press_cake": (0.4, (1.0, -1.5, 0.9)),
     "cut_tumor": (0.2, (1.0, -1.5, 1.0)),
     "drill_eggshell": (0.12, (0.7, -1.0, -0.9)),
-    "craniotomy": (0.2, (1.3, -0.8, 1.1)),
+    "craniotomy": (0.2, (0.45, -1.4, 0.9)),
 }
 #: the scenarios that cut: their own arguments, pictures of the cut mesh and per-step cut statistics
 _CUTTING = ("cut_tumor", "drill_eggshell", "craniotomy")
@@ -152,7 +152,7 @@ def _run_cutting(args, out: pathlib.Path, cellsize: float, direction, device) ->
     stage = out / f"{args.name}.{'usdc' if args.usdc else 'usda'}"
     began = time.perf_counter()
     try:
-        sim.record(stage, steps, every=args.every, progress=True, on_frame=on_frame)
+        sim.record(stage, steps, every=args.every, progress=True, material_colors=colors, on_frame=on_frame)
     except OSError as exc:
         raise WarpblobError(str(exc)) from None
     seconds = time.perf_counter() - began

@@ -872,7 +872,7 @@ class Simulation:
         return {"iterations": iterations, "update": update, "residual": residual, "cg_iterations": cg_total}
 
     def record(self, path, steps: int, *, every: int = 1, progress: bool | None = None,
-               meters_per_unit: float | None = None, on_frame=None):  # fmt: skip
+               meters_per_unit: float | None = None, material_colors=None, on_frame=None):  # fmt: skip
         """Step ``steps`` times and write the motion as a time-sampled USD stage (:class:`warpblob.usd.Recorder`).
 
         The stage's root is ``/Simulation``: ``/Simulation/Volume``, a
@@ -895,6 +895,8 @@ class Simulation:
             progress: show a progress bar (default: on a terminal, for runs of 100 steps or more).
             meters_per_unit: the stage's metres per model unit (default 1: the simulator's
                 constants are SI, so its lengths are metres).
+            material_colors: tissue colours by material id, ``{id: (r, g, b)}`` (default: the
+                model's colour field, :meth:`warpblob.usd.Recorder.add`).
             on_frame: called as ``on_frame(index)`` after each recorded frame
                 (index 0 is the state before the first step), e.g. to render pictures.
 
@@ -914,7 +916,7 @@ class Simulation:
                 raise SimulationError(f"record: {name} must be a positive integer, got {value!r}")
         mpu = 1.0 if meters_per_unit is None else float(meters_per_unit)
         with Recorder(path, fps=1.0 / (self.dt * every), meters_per_unit=mpu, root="Simulation") as rec:
-            rec.add(self, prim_path="/Simulation")
+            rec.add(self, prim_path="/Simulation", material_colors=material_colors)
             rec.frame()
             if on_frame is not None:
                 on_frame(0)
