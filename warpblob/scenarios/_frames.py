@@ -21,6 +21,31 @@ _TOOL_COLOR = (0.55, 0.58, 0.64)
 _POINT_COLOR = (0.85, 0.1, 0.1)
 
 
+def _plotter(window_size):
+    """An off-screen plotter, white, lit by a headlight."""
+    import pyvista as pv
+    import vtk
+
+    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
+    pv.OFF_SCREEN = True
+    plotter = pv.Plotter(off_screen=True, window_size=list(window_size), lighting="none")
+    plotter.add_light(pv.Light(light_type="headlight"))
+    plotter.set_background("white")
+    return plotter
+
+
+def _save(plotter, camera, title: str, path: str) -> str:
+    """Title, camera, then the PNG written atomically; the plotter closed. Returns ``path``."""
+    if title:
+        plotter.add_text(title, position="upper_left", font_size=11, color="black")
+    camera.place(plotter)
+    tmp = path + ".tmp.png"
+    plotter.screenshot(tmp)
+    plotter.close()
+    os.replace(tmp, path)
+    return path
+
+
 class FrameCamera:
     """A camera fixed for a run: looking at ``center`` from ``direction``, framing a box of ``size``.
 
@@ -57,18 +82,13 @@ def render_frame(sim, path: str, camera: FrameCamera, *, title: str = "", window
         ``path``.
     """
     import pyvista as pv
-    import vtk
 
-    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
-    pv.OFF_SCREEN = True
+    plotter = _plotter(window_size)
     surface = sim.embedding.mesh
     colors = highlight(surface.colors, sim.surface_contact()) if sim.tools else surface.colors
     faces = np.column_stack([np.full(surface.face_count, 3), surface.faces]).ravel()
     body = pv.PolyData(sim.surface_positions().astype(np.float64), faces)
     body["RGB"] = (np.clip(colors, 0.0, 1.0) * 255).astype(np.uint8)
-    plotter = pv.Plotter(off_screen=True, window_size=list(window_size), lighting="none")
-    plotter.add_light(pv.Light(light_type="headlight"))
-    plotter.set_background("white")
     plotter.add_mesh(body, scalars="RGB", rgb=True, smooth_shading=True, ambient=0.35, diffuse=0.75, specular=0.15)
     for index, record in enumerate(sim.tools):
         plotter.add_mesh(record.tool.to_pyvista(record.pose(sim.time)), color=_TOOL_COLOR, opacity=0.35,
@@ -77,14 +97,7 @@ def render_frame(sim, path: str, camera: FrameCamera, *, title: str = "", window
         if len(points):
             plotter.add_points(points.astype(np.float64), color=_POINT_COLOR, point_size=7,
                                render_points_as_spheres=True)  # fmt: skip
-    if title:
-        plotter.add_text(title, position="upper_left", font_size=11, color="black")
-    camera.place(plotter)
-    tmp = path + ".tmp.png"
-    plotter.screenshot(tmp)
-    plotter.close()
-    os.replace(tmp, path)
-    return path
+    return _save(plotter, camera, title, path)
 
 
 def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, material_colors=None, title: str = "",
@@ -111,15 +124,10 @@ def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, materia
         ``path``.
     """
     import pyvista as pv
-    import vtk
 
-    vtk.vtkLogger.SetStderrVerbosity(vtk.vtkLogger.VERBOSITY_OFF)
-    pv.OFF_SCREEN = True
     structure = sim._structure
     structure.set_positions(sim.positions)
-    plotter = pv.Plotter(off_screen=True, window_size=list(window_size), lighting="none")
-    plotter.add_light(pv.Light(light_type="headlight"))
-    plotter.set_background("white")
+    plotter = _plotter(window_size)
     if material_colors is not None:
         faces, owner = _boundary(np.asarray(structure.cell_nodes)[np.asarray(structure.cell_alive)])
         material = np.asarray(structure.cell_material)[np.asarray(structure.cell_alive)][owner]
@@ -141,14 +149,7 @@ def render_cut_frame(sim, path: str, camera: FrameCamera, *, model=None, materia
         if cutter.path.t0 <= sim.time <= cutter.path.t1 + 0.25:
             plotter.add_mesh(cutter.tool.to_pyvista(cutter.path.pose(sim.time)), color=_TOOL_COLOR, opacity=0.5,
                              smooth_shading=False, ambient=0.3)  # fmt: skip
-    if title:
-        plotter.add_text(title, position="upper_left", font_size=11, color="black")
-    camera.place(plotter)
-    tmp = path + ".tmp.png"
-    plotter.screenshot(tmp)
-    plotter.close()
-    os.replace(tmp, path)
-    return path
+    return _save(plotter, camera, title, path)
 
 
 def _boundary(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
