@@ -32,7 +32,9 @@ Every tool is timed the same way: the wall clock around its whole call,
 model in, triangles out (dense peers include the dense field evaluation),
 warm (a first call excluded: compilation), best of ``--repeat`` (see
 ``benchmarks/_common.py``); warpblob's ``stats`` seconds per stage of its
-fastest call are kept as the breakdown. warpblob runs with its defaults
+fastest call are kept as the breakdown, and its field evaluations by kind
+(grid samples, root steps and their number per placed vertex, relaxation,
+interval bounds) as ``warpblob_evaluations``. warpblob runs with its defaults
 (vertices refined to |F - 0.5| <= 1e-4, skinny triangles relaxed). A peer
 whose package is missing is skipped with a note. Triangle quality: the share
 of triangles with a smallest angle under 10 degrees, warpblob against Warp's
@@ -213,6 +215,14 @@ def main(argv=None):
                 if stats is not None:
                     row[f"{key}_stats_seconds"] = stats["seconds"]
                     row[f"{key}_stats_total_s"] = stats["total_seconds"]
+                    # where the field evaluations go: grid samples, root search (per vertex), relaxation
+                    placed = stats["vertices"] + stats["welded_vertices"]  # every vertex placed (a few: loop centres)
+                    row[f"{key}_evaluations"] = {
+                        "grid": stats["grid_evaluations"], "root": stats["root_evaluations"],
+                        "root_per_vertex": stats["root_evaluations"] / max(placed, 1),
+                        "relax": stats["relax_evaluations"], "interval": stats["interval_evaluations"],
+                        "dense_sampling": stats["dense_sampling"],
+                    }  # fmt: skip
             peer_seconds = [row[f"{k}_s"] for k in PEERS if f"{k}_s" in row]
             row["speedup_vs_fastest_peer"] = min(peer_seconds) / row["warpblob_s"] if peer_seconds else None
             if "dense_vtk_fe_eval_s" in row:

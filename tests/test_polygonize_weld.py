@@ -270,3 +270,29 @@ def test_reference_models_have_no_needles(name, h, monkeypatch):
         gaps = np.linalg.norm(raw.vertices[ring][:, None] - raw.vertices[ring][None], axis=2)
         groups = connected_components(coo_matrix(gaps <= 2 * limit * (1 + 1e-5)), directed=False)[0]
         assert groups <= 3 and groups < len(ring), f"vertex {x} went with {len(ring)} neighbours in {groups} groups"
+
+
+def test_the_weld_kernel_and_the_vectorized_rounds_weld_the_same_patch():
+    """The one-thread kernel (contract_patch, what weld runs) and the
+    vectorized rounds (contract) follow the same rules: both give back the
+    sphere whose vertices were split, one fan at every vertex."""
+    rng = np.random.default_rng(5)
+    v, f = sphere(3)
+    sv, sf = v, f
+    for a in rng.permutation(len(v))[:30]:
+        ring = link(sf, a)
+        i = int(rng.integers(0, len(ring)))
+        j = i + int(rng.integers(2, len(ring) - 1))
+        if j >= len(ring):
+            continue
+        sv, sf = split(sv, sf, a, tangent(v, a, rng.uniform(0.0, 0.9) * LIMIT), i, j)
+    valence = np.bincount(sf.reshape(-1), minlength=len(sv))
+    candidate = np.ones(len(sv), dtype=bool)
+    expected = triangle_set(v.astype(np.float32), f)
+    for fn in (_weld.contract, _weld.contract_patch):
+        corners, alive = fn(sf, sv, candidate, valence, LIMIT)
+        kept = corners[alive]
+        used, local = np.unique(kept, return_inverse=True)
+        assert len(used) == len(v)
+        assert triangle_set(sv[used].astype(np.float32), local.reshape(-1, 3)) == expected
+        assert np.all(fans_per_vertex(local.reshape(-1, 3)) == 1)

@@ -1508,7 +1508,56 @@ def hermite_root(t: float, f: float, slope: float, ta: float, fa: float, tb: flo
     return t + x
 
 
-def make_segment_root(evaluate):
+@wp.func
+def falloff_root(t: float, f: float, slope: float, te: float, fe: float, iso: float):
+    """Root between ``t`` and ``te`` of the quadratic in falloff space through
+    F's value ``f`` and slope ``slope`` at ``t`` and the value ``fe`` at the
+    bracket's other end ``te`` (values minus ``iso``, of opposite signs); -1
+    where it does not apply (a cubic that also takes the slope at ``te``
+    where that is an earlier step's point took more evaluations on towers,
+    2.94 -> 2.95 per vertex at h = 0.14). The falloff space is ``s = 1 - F^(1/3)``: for one
+    Wyvill primitive ``F = (1 - (d / R)^2)^3``, so ``s = (d / R)^2``, the squared
+    distance to the skeleton, which is exactly quadratic along a line near a
+    point, a segment's or a box's edge and a plate's face (where ``F`` itself
+    bends from 0 to 1 within a cell when ``R`` is near the cell size). It
+    applies where both ``F`` lie in (0, 1) and ``0 < iso < 1``; a blend of
+    several primitives is near one of them close to its surface, and the
+    search's bracket keeps any step safe where it is not."""
+    fa = f + iso
+    fb = fe + iso
+    if not (fa > 0.0 and fa < 1.0 and fb > 0.0 and fb < 1.0 and iso > 0.0 and iso < 1.0):
+        return -1.0
+    ca = wp.cbrt(fa)
+    s = 1.0 - ca
+    ds = -slope / (3.0 * ca * ca)
+    target = 1.0 - wp.cbrt(iso)
+    dt = te - t
+    if dt == 0.0:
+        return -1.0
+    qa = ((1.0 - wp.cbrt(fb)) - s - ds * dt) / (dt * dt)
+    qc = s - target
+    # s(t + x) - target = qc + ds x + qa x^2 changes sign on (0, dt): one root there
+    x = float(-1.0e30)
+    if wp.abs(qa * dt) <= 1.0e-6 * wp.abs(ds):
+        if ds != 0.0:
+            x = -qc / ds
+    else:
+        disc = ds * ds - 4.0 * qa * qc
+        if disc >= 0.0:
+            q = -0.5 * (ds + wp.where(ds >= 0.0, 1.0, -1.0) * wp.sqrt(disc))
+            x1 = q / qa
+            x2 = float(-1.0e30)
+            if q != 0.0:
+                x2 = qc / q
+            x = x1
+            if not (x1 * dt > 0.0 and wp.abs(x1) < wp.abs(dt)):
+                x = x2
+    if x * dt > 0.0 and wp.abs(x) < wp.abs(dt):
+        return t + x
+    return -1.0
+
+
+def make_segment_root(evaluate, falloff_space: bool = False):
     """A root search on segments, for polygonization and isosurface stuffing.
 
     ``evaluate`` is a point-mode traversal with derivatives (:func:`make_evaluate`).
@@ -1524,6 +1573,14 @@ def make_segment_root(evaluate):
     (Press et al.'s rtsafe: a step that leaves the bracket or fails to halve
     the previous one falls back to bisection). ``r`` is the evaluation at ``t`` (value,
     gradient, colour); if ``max_iterations`` run out, the best point found.
+
+    With ``falloff_space`` each step first tries :func:`falloff_root` (the
+    quadratic in ``s = 1 - F^(1/3)`` through the value and slope at ``t`` and
+    the value at the bracket's other end), which is exact for one Wyvill
+    primitive whose squared distance is quadratic along the segment, and
+    falls back to the cubic above where it does not apply (towers h = 0.05:
+    vertices whose second evaluation meets the tolerance 41% -> 90% on
+    z-edges, 69% -> 83% on x- and y-edges).
     """
 
     @wp.func(inline=True)
@@ -1564,18 +1621,27 @@ def make_segment_root(evaluate):
             pfa = fa
             pb = tb
             pfb = fb
+            slope = r[1] * step[0] + r[2] * step[1] + r[3] * step[2]
             if (ft >= 0.0) == (fa >= 0.0):
                 ta = t
                 fa = ft
             else:
                 tb = t
                 fb = ft
-            slope = r[1] * step[0] + r[2] * step[1] + r[3] * step[2]
             tn = float(-1.0)
             if slope != 0.0:
                 tn = t - ft / slope
             # the cubic through the bracket's ends with the tangent at t, from the Newton point
-            th = hermite_root(t, ft, slope, pa, pfa, pb, pfb, wp.clamp(wp.where(tn > 0.0, tn, 0.5 * (ta + tb)), ta, tb))
+            th = float(-1.0)
+            if wp.static(falloff_space):
+                # the other end of the new bracket lies on the other side of the root from t
+                if ta == t:
+                    th = falloff_root(t, ft, slope, tb, fb, iso)
+                else:
+                    th = falloff_root(t, ft, slope, ta, fa, iso)
+            if not (th > ta and th < tb):
+                start = wp.clamp(wp.where(tn > 0.0, tn, 0.5 * (ta + tb)), ta, tb)
+                th = hermite_root(t, ft, slope, pa, pfa, pb, pfb, start)
             if th > ta and th < tb:
                 tn = th
             if tn > ta and tn < tb and wp.abs(tn - t) < 0.5 * dx_old:

@@ -18,15 +18,21 @@ grid, each stage a Warp kernel with at most one host sync:
 3. Crossed edges and cell configurations, prefix sums (``wp.utils.array_scan``).
 4. One vertex per crossed edge, on the surface to ``|F - iso| <= 1e-4``:
    a safeguarded Newton search (Press et al., *Numerical Recipes*, rtsafe)
-   whose steps take the root of the cubic Hermite interpolant through the
-   bracket, started from the cubic through four samples.
+   whose steps take the root of the quadratic in the Wyvill falloff space
+   ``s = 1 - F^(1/3)`` (the squared distance over the radius for one
+   primitive) through the value, the slope and the bracket's other end, else
+   of the cubic Hermite interpolant through the bracket, started from the
+   cubic through four samples.
 5. Faces from a generated loop table, ambiguous faces resolved by the
    asymptotic decider (Nielson & Hamann, *The asymptotic decider*, IEEE
    Visualization 1991), loops fanned from the apex that maximizes the
    smallest angle; then every edge shorter than 3% of a cell is contracted
    where the link condition allows (Dey, Edelsbrunner, Guha & Nekhayev,
-   *Topology preserving edge contraction*, 1999), which removes the needles
-   the grid makes near its vertices and keeps the mesh a closed 2-manifold.
+   *Topology preserving edge contraction*, 1999), shortest first by one
+   thread of a CPU kernel over the read-back patch (union-find labels,
+   Tarjan, *Efficiency of a good but not linear set union algorithm*,
+   JACM 1975), which removes the needles the grid makes near its vertices
+   and keeps the mesh a closed 2-manifold.
 6. Tangential relaxation of the vertices of triangles under 10 degrees,
    re-projected onto the surface by Newton steps along the gradient (the
    projection of Hartmann, *A marching method for the triangulation of

@@ -397,7 +397,13 @@ def face_kernel(
             # (minimizes the largest smallest-angle cosine)
             apex = int(-1)
             best = float(2.0)
-            for s in range(n):
+            if n == 3:
+                # one triangle whatever the apex: the first allowed one (every
+                # apex gives the same cosines, a tie kept by the strict test below)
+                for s in range(3):
+                    if apex < 0 and (apexes >> s) & 1 != 0:
+                        apex = s
+            for s in range(wp.where(n == 3, 0, n)):
                 if (apexes >> s) & 1 != 0:
                     worst = float(-2.0)
                     for t in range(1, n - 1):
@@ -441,7 +447,17 @@ def make_project(value):
                 break
             if gg <= 0.0:
                 break
-            step = -(ft / gg) * grad
+            # Newton in falloff space: for one Wyvill primitive x = sqrt(1 - F^(1/3))
+            # is the distance over R, linear along the gradient near a point or a face
+            fv = r[0]
+            gap = ft
+            if fv > 0.0 and fv < 1.0 and iso > 0.0 and iso < 1.0:
+                c = wp.cbrt(fv)
+                x_here = wp.sqrt(wp.max(1.0 - c, 0.0))
+                if x_here > 0.0:
+                    dxdf = -1.0 / (6.0 * c * c * x_here)
+                    gap = (x_here - wp.sqrt(1.0 - wp.cbrt(iso))) / dxdf
+            step = -(gap / gg) * grad
             length = wp.length(step)
             if length > max_step:
                 step = step * (max_step / length)
@@ -642,7 +658,7 @@ def make_sample_kernels(value_only, block_value) -> dict:
 def make_vertex_kernels(value, project) -> dict:
     """The surface vertices: one per crossed edge (the root search of
     :func:`make_segment_root` over ``value``) and one per loop centre (``project``)."""
-    segment_root = make_segment_root(value)
+    segment_root = make_segment_root(value, falloff_space=True)
 
     @wp.kernel(enable_backward=False, module="unique")
     def edge_vertex_kernel(
