@@ -240,3 +240,20 @@ def test_a_progressive_drill_in_a_simulation_frees_the_plug_of_one_stroke():
     assert s.surface().is_closed_manifold() and rest.volumes().min() > 0
     live = np.asarray(s.cell_nodes)[np.asarray(s.cell_alive)]
     assert sim.positions[np.unique(live[labels == plug]), 2].max() < 0.3  # it fell out of its hole
+
+
+def test_the_drill_scenario_runs_from_the_command_line(tmp_path, capsys):
+    import argparse
+    import json
+
+    from warpblob.scenarios._command import add_scenario_parser, run_scenario
+
+    parser = argparse.ArgumentParser()
+    add_scenario_parser(parser.add_subparsers(dest="command"))
+    out = tmp_path / "egg"
+    args = parser.parse_args(["scenario", "drill_eggshell", "--out", str(out), "--cellsize", str(CELL),
+                              "--frames", "1", "--every", "15"])  # fmt: skip
+    assert run_scenario(args) == 0
+    rows = json.loads((out / "drill_eggshell_steps.json").read_text())["steps"]
+    assert len(rows) > 10 and rows[-1]["components"] == 2  # a cut per drill step; the plug came free
+    assert (out / "drill_eggshell.usda").exists() and "2 pieces" in capsys.readouterr().out
