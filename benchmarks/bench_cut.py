@@ -37,6 +37,23 @@ is timed separately. The share of inverted (signed volume <= 0) tets among
 those it makes from the crossed tets is reported, next to warpblob's count
 of inverted tets over the whole cut mesh (checked: zero).
 
+Drill (``drill`` rows; issue 15): a bone plate ``box_tetmesh`` of
+[0, 4] x [0, 4] x [0, 0.6] (cm; about 10K, 66K, the thesis skull's size, and
+500K tets) and a trephine (``wb.tools.Drill``, radius 0.5 cm, N = 8, 16, 32
+wall segments) boring straight down through it in 30 frames of 1/60 s, from
+0.1 above the plate to 0.1 below it. Each frame is one drill step as the
+simulator's progressive cutter makes it (``Cutter``, ``mode="progressive"``):
+the whole stroke so far, cut in the rest frame against the edges the plate
+had when the stroke began (``node_limit``), the nodes its earlier steps
+snapped to kept cut (``cut_nodes``). The ``skull`` rows drill
+the layered head's skull (``scenes.head_materials()`` at cell size 0.118:
+66K skull tets, the thesis' size, in 237K tets) at the craniotomy's first
+site, bone only (``materials={0}``), radius 0.2 cm, from 0.1 above the skull
+to a cell below its inner surface. Reported: the median and the
+largest ms per step over the 30 steps of a second, warm stroke (the first
+stroke on another copy compiles), tets split in all, pieces at the end (2:
+the plug is free).
+
 Timing (``benchmarks/_common.py``): wall clock around each whole call,
 warm (one call first, not timed, so kernel compilation is excluded), best of
 ``--repeat``; a fresh mesh structure is built before every call, untimed.
@@ -49,6 +66,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -157,18 +175,85 @@ def run_vtk(mesh: wb.TetMesh, repeat: int) -> dict:
     }
 
 
-FULL = {"sizes": "10000,100000,1000000", "repeat": 5}
-QUICK = {"sizes": "10000,100000", "repeat": 2}
+#: the drill case: plate (cm), drill radius (cm), frames per stroke, start above / end below the plate (cm)
+PLATE, DRILL_RADIUS, DRILL_FRAMES, DRILL_MARGIN = (4.0, 4.0, 0.6), 0.5, 30, 0.1
+
+
+def plate(tets: int) -> wb.TetMesh:
+    """The bone plate in cubes of six tets, about ``tets`` of them."""
+    n = max(2, round((tets / 6 * PLATE[0] / PLATE[2]) ** (1 / 3)))
+    m = max(1, round(n * PLATE[2] / PLATE[0]))
+    return box_tetmesh((0, 0, 0), PLATE, (n, n, m))
+
+
+def drill_stroke(mesh: wb.TetMesh, segments: int, path=None, radius: float = DRILL_RADIUS,
+                 materials=None) -> tuple[dict, TetStructure]:  # fmt: skip
+    """One stroke through ``mesh``, a cut per frame as the progressive cutter makes it: per-step ms and counts."""
+    drill = wb.tools.Drill(radius, 1.0, segments=segments)
+    if path is None:
+        centre = (0.5 * PLATE[0] + 0.013, 0.5 * PLATE[1] - 0.007)
+        path = wb.tools.Path.line((*centre, PLATE[2] + DRILL_MARGIN), (*centre, -DRILL_MARGIN),
+                                  DRILL_FRAMES * FRAME, align=True)  # fmt: skip
+    s = TetStructure.from_tetmesh(mesh)
+    limit, sticky = len(s.node_rest), np.zeros(0, dtype=np.int64)
+    ms, split, result = [], 0, None
+    for k in range(1, DRILL_FRAMES + 1):
+        sweep = SweepSurface.from_path(drill, path, path.t0, path.t0 + k * FRAME, FRAME)
+        t = time.perf_counter()
+        result = cut(s, sweep, collect=False, configuration="rest", node_limit=limit, cut_nodes=sticky,
+                     materials=materials)  # fmt: skip
+        ms.append(1e3 * (time.perf_counter() - t))
+        split += result.split_cells
+        copies = result.new_nodes[result.node_sources[:, 0] == result.node_sources[:, 1]]  # as Cutter keeps them
+        sticky = np.union1d(sticky, np.concatenate([result.cut_nodes, copies]))
+    return {"step_ms_median": float(np.median(ms)), "step_ms_max": float(np.max(ms)), "tets_split": split,
+            "components": result.components, "tets_after": s.cell_count}, s  # fmt: skip
+
+
+def run_drill(size: int, segments: int) -> dict:
+    mesh = plate(size)
+    drill_stroke(mesh, segments)  # warm: compiles, fills caches
+    row, s = drill_stroke(mesh, segments)
+    inverted = int((s.to_tetmesh().volumes() <= 0).sum())
+    return {"case": "drill", "tets": mesh.tet_count, "segments": segments, **row, "wb_inverted": inverted}
+
+
+def run_skull(cellsize: float, segments: int) -> dict:
+    """The layered head's skull (``scenes.head_materials``, 66K skull tets at 0.118) drilled at the
+    craniotomy's first site by a bone-only drill (radius 0.2), a cut per frame."""
+    from warpblob.scenarios._drilling import CRANIOTOMY_SITES, _surface_height
+
+    layers = wb.scenes.head_materials()
+    mesh = wb.tetrahedralize(layers["skull"], cellsize=cellsize, materials=layers)
+    high = float(mesh.nodes[:, 2].max()) + 0.5
+    (x, y) = CRANIOTOMY_SITES[0]
+    top, inner = _surface_height(layers["skull"], x, y, high), _surface_height(layers["cerebrospinal fluid"], x, y, high)
+    path = wb.tools.Path.line((x, y, top + 0.1), (x, y, inner - cellsize), DRILL_FRAMES * FRAME, align=True)
+    drill_stroke(mesh, segments, path, 0.2, {0})  # warm
+    row, s = drill_stroke(mesh, segments, path, 0.2, {0})
+    inverted = int((s.to_tetmesh().volumes() <= 0).sum())
+    return {"case": "skull", "tets": int((mesh.material == 0).sum()), "all_tets": mesh.tet_count,
+            "segments": segments, **row, "wb_inverted": inverted}  # fmt: skip
+
+
+FULL = {"sizes": "10000,100000,1000000", "repeat": 5, "drill_sizes": "10000,66000,500000", "segments": "8,16,32",
+        "skull": 0.118}
+QUICK = {"sizes": "10000,100000", "repeat": 2, "drill_sizes": "10000", "segments": "16", "skull": 0.0}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", help=f"comma-separated tet counts (default {FULL['sizes']})")
+    ap.add_argument("--drill-sizes", dest="drill_sizes",
+                    help=f"plate tet counts for the drill case, '' for none (default {FULL['drill_sizes']})")
+    ap.add_argument("--segments", help=f"drill wall segments (default {FULL['segments']})")
+    ap.add_argument("--skull", type=float, help="cell size of the layered head whose skull is drilled, 0 for none "
+                    f"(default {FULL['skull']}: 66K skull tets)")  # fmt: skip
     args = arguments(ap, FULL, QUICK, argv)
     bench = Run("cut", "cutting benchmark: ms per cut, warm, collect=False (gc timed apart)", args)
     plane = SweepSurface.plane(ORIGIN, NORMAL, SIDE)
     rows = []
-    for size in (int(s) for s in args.sizes.split(",")):
+    for size in (int(s) for s in args.sizes.split(",") if s):
         mesh = box(size)
         for case, sweep in (("plane", plane), ("stroke", stroke_step())):
             row = {"case": case, "tets": mesh.tet_count, **run_warpblob(mesh, sweep, args.repeat)}
@@ -188,10 +273,24 @@ def main(argv=None):
     cols += [("vtk_inverted_share", "vtk inv", ".1%"), ("speedup_vs_vtk_clip", "x clip", ".2f")]
     cols += [("speedup_vs_vtk_clip_triangulated", "x clip+tri", ".2f")]
     print(table(rows, cols))
+    drills = [run_drill(int(size), int(n)) for size in args.drill_sizes.split(",") if size
+              for n in args.segments.split(",")]  # fmt: skip
+    if args.skull:
+        drills += [run_skull(args.skull, int(n)) for n in args.segments.split(",")]
+    if drills:
+        print(table(drills, [("case", "case", "s"), ("tets", "bone tets", ",d"), ("segments", "N", "d"),
+                             ("step_ms_median", "ms/step (median)", ".1f"), ("step_ms_max", "max", ".1f"),
+                             ("tets_split", "split", "d"), ("components", "pieces", "d"),
+                             ("wb_inverted", "inv", "d")]))  # fmt: skip
+        print(f"drill: {DRILL_FRAMES} steps of a stroke through the plate, each the whole stroke so far "
+              "(the progressive cutter); warm (a first stroke on another copy excluded)")  # fmt: skip
+    rows += drills
     print("gc: collect_garbage after the cut, timed apart (not in wb ms); inv: tets with signed volume <= 0 "
           "(wb: whole mesh; vtk: of those made from crossed tets, after triangulate)")  # fmt: skip
     bench.finish({"rows": rows, "box_side": SIDE, "plane": {"origin": ORIGIN, "normal": NORMAL},
-                  "stroke": {"speed": SPEED, "frame": FRAME, "edge": EDGE, "above": ABOVE}})  # fmt: skip
+                  "stroke": {"speed": SPEED, "frame": FRAME, "edge": EDGE, "above": ABOVE},
+                  "drill": {"plate": PLATE, "radius": DRILL_RADIUS, "frames": DRILL_FRAMES,
+                            "margin": DRILL_MARGIN}})  # fmt: skip
 
 
 if __name__ == "__main__":
