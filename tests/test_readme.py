@@ -35,3 +35,15 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch):
     assert wb.usd.load_tetmesh(str(tmp_path / "tumor_cut.usda")).tet_count == pieces.cell_count
     assert wb.usd.load_mesh(str(tmp_path / "tumor_cut_surface.usda")).is_cut.any()
     assert open(tmp_path / "tumor_cut.png", "rb").read(4) == b"\x89PNG"
+    assert namespace["egg"].stats["components"] == 2 and (tmp_path / "craniotomy.usdc").exists()
+    assert namespace["head"].stats["rigid"]["free"] >= 2  # the plugs (and the front's bone)
+
+
+def test_the_drilling_page_example_runs(tmp_path, monkeypatch):
+    """docs/drill.md's example runs as written (its own asserts check it)."""
+    page = os.path.join(os.path.dirname(__file__), "..", "docs", "drill.md")
+    blocks = re.findall(r"```python\n(.*?)```", open(page).read(), flags=re.S)
+    assert len(blocks) == 1
+    monkeypatch.chdir(tmp_path)
+    exec(compile(blocks[0], "docs/drill.md", "exec"), {})
+
