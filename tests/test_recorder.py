@@ -207,16 +207,34 @@ def _record_moving_box(path, frames, flush_bytes):
     return growth, rest, wave
 
 
+def _growth_in_a_fresh_process(path, frames: int, flush_bytes: int) -> float:
+    """The RSS growth (MB) of :func:`_record_moving_box` run in a new Python process."""
+    import subprocess
+    import sys
+
+    code = (f"import sys; sys.path.insert(0, {os.path.dirname(os.path.abspath(__file__))!r}); "
+            f"from test_recorder import _record_moving_box; "
+            f"print(_record_moving_box({str(path)!r}, {frames}, {flush_bytes})[0])")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return float(out.stdout.strip().splitlines()[-1])
+
+
 @pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs /proc for RSS")
 def test_a_long_recording_streams_to_disk_in_bounded_memory(tmp_path):
     # 1,000 frames of a 50,400-tet box, its points set directly each frame (a simulation per frame would take
     # minutes): ~147 MB of time samples. Streamed (saved every 8 MiB) the process grows by well under the bound;
     # the same recording held in memory (never saved until close) grows past it, so the measurement can tell.
+    # Each recording runs in a fresh process: in this one, memory freed by earlier tests would serve the held
+    # recording's growth without RSS rising, and the control could not tell.
     frames, bound_mb = 1000, 48.0
-    growth, rest, wave = _record_moving_box(tmp_path / "long.usdc", frames, 8 << 20)
+    growth = _growth_in_a_fresh_process(tmp_path / "long.usdc", frames, 8 << 20)
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (21, 20, 20)))
+    rest = np.asarray(s.node_rest).copy()
+    wave = np.sin(np.pi * rest[:, 0]).astype(np.float32)
     assert 12 * len(rest) * frames > 2 * bound_mb * 2**20  # the volume's points alone would not fit in the bound
     assert growth < bound_mb, f"RSS grew {growth:.1f} MB"
-    held, _, _ = _record_moving_box(tmp_path / "held.usdc", frames, 1 << 40)
+    held = _growth_in_a_fresh_process(tmp_path / "held.usdc", frames, 1 << 40)
     assert held > bound_mb, f"held in memory, RSS grew only {held:.1f} MB"
     stage = Usd.Stage.Open(str(tmp_path / "long.usdc"))
     points = UsdGeom.TetMesh(stage.GetPrimAtPath("/World/Volume/Volume")).GetPointsAttr()
