@@ -27,7 +27,7 @@ from .io._meshfile import load_mesh
 from .polygonize import polygonize
 from . import sim
 from .sim import Simulation
-from .tetrahedralize import tetrahedralize
+from .tetrahedralize import PinchedBoundaryError, PinchedBoundaryWarning, tetrahedralize
 from . import tools
 from . import cut
 from . import scenarios
@@ -80,6 +80,8 @@ __all__ = [
     "SimulationError",
     "ToolError",
     "CutError",
+    "PinchedBoundaryError",
+    "PinchedBoundaryWarning",
     "ISO_VALUE",
     "ISO_DISTANCE",
     "Node",
