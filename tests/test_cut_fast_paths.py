@@ -1,5 +1,5 @@
 """The cutter's fast paths against their plain counterparts: the few-triangle intersection against the BVH's,
-the packed-sort unique against numpy's, the component kernel against a graph library."""
+the packed-sort uniques against numpy's, the component kernel against a graph library."""
 
 import numpy as np
 import pytest
@@ -9,9 +9,9 @@ from scipy.sparse.csgraph import connected_components
 
 from warpblob.cut import SweepSurface, cut
 from warpblob.cut import _kernels as k
-from warpblob.cut._cut import _boxes
+from warpblob.cut._cut import _boxes, _planes
 from warpblob.mesh import TetStructure, box_tetmesh
-from warpblob.mesh._structure import _unique_first
+from warpblob.mesh._structure import _unique_first, _unique_inverse, vec6i
 
 
 def _intersect(kernel, edges, positions, sweep, device):
@@ -24,7 +24,7 @@ def _intersect(kernel, edges, positions, sweep, device):
         bvh = wp.Bvh(lowers, uppers)
         inputs += [bvh.id, corners, 0]
     else:
-        inputs += [lowers, uppers, corners, 0]
+        inputs += [lowers, uppers, corners, *_planes(sweep, device), 0]
     out = [wp.empty(n, dtype=float, device=device), wp.empty(n, dtype=wp.int32, device=device),
            wp.empty(n, dtype=wp.int32, device=device)]  # fmt: skip
     wp.launch(kernel, dim=n, inputs=inputs + out, device=device)
@@ -47,6 +47,54 @@ def test_few_triangle_intersection_is_the_bvh_one(device):
     for x, y in zip(few, tree):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(few[2], (few[0] >= 0).astype(np.int32))
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e3])
+def test_same_side_skip_keeps_every_hit(device, scale):
+    """Edges with an end on, or a hair's breadth (1e-9..1e-3 of the edge) either side of, a tilted plane's
+    triangles, edges in the plane, and edges with both ends near it (1e-7..1e-1 of its size, around the
+    skip's slack): the few-triangle kernel (which passes over edges clearly on one side) gives the BVH
+    kernel's hits, parameters and flags exactly."""
+    rng = np.random.default_rng(11)
+    origin, normal = np.array([0.4, 0.5, 0.45]) * scale, np.array([0.3, -0.2, 1.0])
+    sweep = SweepSurface.plane(origin, normal, 3.0 * scale)
+    u = np.cross(normal, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(normal / np.linalg.norm(normal), u)
+    m = 3000
+    on = origin + scale * (rng.uniform(-1, 1, (m, 1)) * u + rng.uniform(-1, 1, (m, 1)) * w)  # on the plane
+    direction = rng.normal(size=(m, 3))
+    length = scale * rng.uniform(0.01, 0.2, (m, 1))
+    far = on + length * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    nudge = rng.choice([0.0, 1e-9, -1e-9, 1e-7, -1e-7, 1e-5, -1e-5, 1e-3, -1e-3], (m, 1)) * length
+    near = on + nudge * normal / np.linalg.norm(normal)
+    across = np.cross(direction, normal)
+    flat = on + length * across / np.linalg.norm(across, axis=1, keepdims=True)  # in the plane
+    # both ends off the plane, 1e-7..1e-1 of its size away, either side: around the skip's slack
+    off = scale * rng.choice([-1, 1], (m, 1)) * 10.0 ** rng.uniform(-7, -1, (m, 1))
+    lifted = on + off * normal / np.linalg.norm(normal)
+    positions = np.concatenate([near, far, flat, lifted]).astype(np.float32)
+    i = np.arange(m)
+    edges = np.concatenate([np.stack([i, m + i], 1), np.stack([m + i, i], 1), np.stack([i, 2 * m + i], 1),
+                            np.stack([3 * m + i, 3 * m + np.roll(i, 1)], 1)])  # fmt: skip
+    few = _intersect(k.intersect_edges_few_kernel, edges.astype(np.int32), positions, sweep, device)
+    tree = _intersect(k.intersect_edges_kernel, edges.astype(np.int32), positions, sweep, device)
+    assert 0.3 * len(edges) < few[2].sum() < len(edges)  # hits and misses both
+    for x, y in zip(few, tree):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_unique_inverse_is_numpys():
+    """Narrow keys (the packed sort), wide and negative ones (the argsort): numpy's unique and inverse."""
+    rng = np.random.default_rng(5)
+    for keys in (rng.integers(0, 1_000, 5000), rng.integers(0, 1 << 60, 5000), rng.integers(-50, 50, 300),
+                 np.zeros(0, np.int64), np.array([7])):  # fmt: skip
+        keys = np.concatenate([keys, keys[: len(keys) // 3]]).astype(np.int64)
+        want = np.unique(keys, return_inverse=True)
+        got = _unique_inverse(keys)
+        for x, y in zip(want, got):
+            np.testing.assert_array_equal(np.ravel(x), y)
+            assert np.ravel(x).dtype == y.dtype
 
 
 @pytest.mark.parametrize("top", [1_000, 1 << 50])
@@ -82,3 +130,34 @@ def test_components_match_a_graph_reference():
     _, ref_dense = np.unique(ref[live], return_inverse=True)
     np.testing.assert_array_equal(labels[live], renumber[ref_dense.ravel()])
     assert labels.max() + 1 == 4 == s._component_count()
+
+
+def _edges_in_use(s: TetStructure, device) -> np.ndarray:
+    """The cut's own marking pass: 1 for every edge slot a live cell uses."""
+    out = wp.zeros(len(s.edge_nodes), dtype=wp.uint8, device=device)
+    wp.launch(k.mark_edges_in_use_kernel, dim=len(s.cell_nodes), device=device,
+              inputs=[wp.array(np.asarray(s.cell_edges), dtype=vec6i, device=device),
+                      wp.array(np.asarray(s.cell_alive).view(np.uint8), dtype=wp.uint8, device=device), 0,
+                      out])  # fmt: skip
+    return out.numpy()
+
+
+def test_edges_used_flag_only_when_every_edge_is_used(device):
+    """The structure's "every edge a live cell's" flag (a cut then skips its marking pass) holds after a build
+    and a compaction, and is dropped by anything that can leave an edge unused; whenever it holds, the
+    marking pass marks every slot."""
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (3, 3, 3)))
+    states = [s._edges_used]
+    assert _edges_in_use(s, device).all()
+    cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1.0, 0.2, 0.1), 3.0), collect=False)
+    states.append(s._edges_used)  # split edges stay, unused, until the compaction
+    assert not _edges_in_use(s, device).all()
+    s.collect_garbage()
+    states.append(s._edges_used)
+    assert _edges_in_use(s, device).all()
+    s.insert_edge(0, int(np.asarray(s.edge_nodes).max()))  # an edge alone
+    states.append(s._edges_used)
+    s.collect_garbage()
+    s.remove_cell(0)
+    states.append(s._edges_used)
+    assert states == [True, False, True, False, False]

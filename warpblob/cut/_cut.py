@@ -160,6 +160,16 @@ def _boxes(sweep: SweepSurface, device) -> tuple[tuple[wp.array, wp.array], wp.a
     return (lowers, uppers), corners
 
 
+def _planes(sweep: SweepSurface, device) -> tuple[wp.array, wp.array]:
+    """Per sweep triangle: its normal ``e1 x e2`` and the slack of the same-side test of
+    ``intersect_edges_few_kernel`` (1e-4 |e1| |e2|), from the float32 corners the kernels read."""
+    tri = sweep.triangles.astype(np.float32).astype(np.float64)
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    normals = np.cross(e1, e2).astype(np.float32)
+    slack = (1e-4 * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)).astype(np.float32)
+    return wp.array(normals, dtype=wp.vec3, device=device), wp.array(slack, dtype=float, device=device)
+
+
 def _shared(values: np.ndarray, dtype, device) -> wp.array:
     """``values`` as a Warp array: the same memory on the CPU (no copy of the big structure arrays), a copy on CUDA."""
     values = np.ascontiguousarray(values)
@@ -256,19 +266,27 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     cell_edges_wp = _shared(np.asarray(structure.cell_edges), vec6i, dev)
     cell_alive_np = np.asarray(structure.cell_alive).view(np.uint8)
     if selected is not None:  # only the chosen materials' cells take part (their edges, their codes)
-        cell_alive_np = cell_alive_np & np.isin(np.asarray(structure.cell_material), selected).astype(np.uint8)
+        material = np.asarray(structure.cell_material)
+        chosen = np.zeros(max(int(selected.max()), int(material.max()) if len(material) else 0) + 1, dtype=np.uint8)
+        chosen[selected[selected >= 0]] = 1  # a lookup table: a gather, not isin's sort
+        cell_alive_np = cell_alive_np & chosen[np.maximum(material, 0)] & (material >= 0).view(np.uint8)
     cell_alive_wp = _shared(cell_alive_np, wp.uint8, dev)
-    edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
-    launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads, min_chunk=_CHEAP)
+    if selected is None and structure._edges_used:  # every edge slot is a live cell's (a fresh or compacted mesh)
+        edge_ok = wp.full(E, 1, dtype=wp.uint8, device=dev)
+    else:
+        edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
+        launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads,
+               min_chunk=_CHEAP)  # fmt: skip
     if node_limit is not None:
-        edge_ok.assign(edge_ok.numpy() * (edge_nodes_np.max(axis=1) < int(node_limit)).astype(np.uint8))
+        old = np.maximum(edge_nodes_np[:, 0], edge_nodes_np[:, 1]) < int(node_limit)  # (not .max(axis=1): 10x slower)
+        edge_ok.assign(edge_ok.numpy() & old.view(np.uint8))
     frame = positions_np if configuration == "current" else np.asarray(structure.node_rest)
     positions = _shared(frame, wp.vec3, dev)
     hit_t = wp.empty(E, dtype=float, device=dev)
     hit_tri = wp.empty(E, dtype=wp.int32, device=dev)
     flags = wp.empty(E, dtype=wp.int32, device=dev)
     if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
-        launch(k.intersect_edges_few_kernel, E, [edge_nodes, edge_ok, positions, *boxes, corners],
+        launch(k.intersect_edges_few_kernel, E, [edge_nodes, edge_ok, positions, *boxes, corners, *_planes(sweep, dev)],
                [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
     else:
         bvh = wp.Bvh(*boxes)
@@ -466,7 +484,8 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
     perm = wp.empty(n, dtype=wp.int32, device=dev)
     volume = wp.empty(n, dtype=wp.float64, device=dev)
     bad = wp.empty(n, dtype=wp.int32, device=dev)
-    launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=256)
+    # one launch below 2048 units (a 10K-tet cut): waking the pool costs more than the second thread gives
+    launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=1024)
     return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
 
 

@@ -636,6 +636,31 @@ def _unique_first(keys: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray,
     return k[heads], pos[heads], inverse
 
 
+def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(keys, return_inverse=True)`` of 1-D int64 keys (the inverse flat): a value sort of
+    ``key << b | position`` where that fits 63 bits, else one quicksort argsort (``np.unique`` with an
+    inverse costs several times either on these sizes)."""
+    keys = np.asarray(keys, dtype=np.int64).ravel()
+    n = len(keys)
+    if n == 0:
+        return keys.copy(), np.zeros(0, dtype=np.int64)
+    bits = max(int(n - 1).bit_length(), 1)
+    heads = np.empty(n, dtype=bool)
+    heads[0] = True
+    inverse = np.empty(n, dtype=np.int64)
+    if int(keys.min()) >= 0 and int(keys.max()).bit_length() + bits <= 62:
+        packed = np.sort((keys << bits) | np.arange(n, dtype=np.int64))
+        k = packed >> bits
+        np.not_equal(k[1:], k[:-1], out=heads[1:])
+        inverse[packed & ((1 << bits) - 1)] = np.cumsum(heads) - 1
+        return k[heads], inverse
+    order = np.argsort(keys)
+    k = keys[order]
+    np.not_equal(k[1:], k[:-1], out=heads[1:])
+    inverse[order] = np.cumsum(heads) - 1
+    return k[heads], inverse
+
+
 def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> np.ndarray:
     """Component labels of ``count`` items joined by pairs (a, b), numbered by lowest item; -1 where not alive.
 
@@ -936,6 +961,9 @@ class TetStructure:
         self._table_bits = 4
         self._table_used = 0  # live keys plus deleted slots
         self._table_node_bound = 0  # every node of a key in the table is below this (a node above has no edge)
+        # every edge slot is used by a live cell (after a build or a compaction, until an edge is inserted
+        # alone or a cell removed or changed): lets a cut skip its pass marking the edges in use
+        self._edges_used = False
         self._clear_links()
 
     def _clear_links(self) -> None:
@@ -1022,6 +1050,7 @@ class TetStructure:
             alive=np.ones(T, dtype=bool),
         )
         s._rebuild(dev, threads)
+        s._edges_used = True  # the edges are those of the cells
         s.stats = {"seconds": time.perf_counter() - start, "device": str(dev)}
         return s
 
@@ -1186,6 +1215,8 @@ class TetStructure:
     def _emit(self, kind: str, action: str, index: int) -> None:
         if kind == "cell" or action == "compact":
             self.topology_version += 1
+        if kind != "node" and (action in ("remove", "update") or (kind == "edge" and action == "insert")):
+            self._edges_used = False
         for callback in list(self._observers):
             callback(kind, action, index)
 
@@ -1615,11 +1646,13 @@ class TetStructure:
         table = [wp.array(self._table_keys, dtype=wp.int64, device=cpu, copy=False),
                  wp.array(self._table_values, dtype=wp.int32, device=cpu, copy=False), self._table_bits,
                  self._table_node_bound]  # fmt: skip
+        # one launch below 4096 new cells (a 10K-tet cut): waking the pool costs more than the second thread gives
         launch(new_cells_kernel, C,
                [new_wp, wp.array(st["node"]["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
                 wp.int64(key_base), *table],
                [wp.array(a, dtype=t, device=cpu, copy=False) for a, t in
-                ((bad, wp.int32), (new_keys, wp.int64), (found, wp.int32), (edge_keys, wp.int64))], cpu)  # fmt: skip
+                ((bad, wp.int32), (new_keys, wp.int64), (found, wp.int32), (edge_keys, wp.int64))], cpu,
+               min_chunk=2048)  # fmt: skip
         if C and bad.any():
             if np.any(bad == 1):
                 raise WarpblobError("TetStructure.replace_cells: a new cell names a missing or removed node")
@@ -1636,7 +1669,8 @@ class TetStructure:
         gone = np.zeros(cells.count, dtype=bool)
         gone[remove] = True
         slots[(slots >= 0) & gone[np.maximum(slots, 0)]] = -1
-        slots = np.stack([slots.max(axis=1), slots.min(axis=1)], axis=1)  # the kept cell (if any) first
+        # the kept cell (if any) first
+        slots = np.stack([np.maximum(slots[:, 0], slots[:, 1]), np.minimum(slots[:, 0], slots[:, 1])], axis=1)
         if key_base:
             old_keys = np.empty(len(old_faces), dtype=np.int64)
             launch(triple_keys_kernel, len(old_faces),
@@ -1646,12 +1680,12 @@ class TetStructure:
             keys = np.concatenate([old_keys, new_keys])
         else:
             keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new[:, TET_FACES].reshape(-1, 3)]), N)
-        uniq, inverse = np.unique(keys, return_inverse=True)
-        inverse = inverse.ravel().astype(np.int32)
+        uniq, inverse = _unique_inverse(keys)
+        inverse = inverse.astype(np.int32)
         face_of = np.full(len(uniq), -1, dtype=np.int64)
         face_of[inverse[: len(old_faces)]] = old_faces
         taken = np.zeros(len(uniq), dtype=np.int32)
-        taken[inverse[: len(old_faces)]] = (slots >= 0).sum(axis=1)
+        taken[inverse[: len(old_faces)]] = (slots[:, 0] >= 0).astype(np.int32) + (slots[:, 1] >= 0)
         inv_new = inverse[len(old_faces) :]
         uses = np.bincount(inv_new, minlength=len(uniq))
         if np.any(taken + uses > 2):
@@ -1660,6 +1694,7 @@ class TetStructure:
             raise WarpblobError(f"TetStructure.replace_cells: face {f} would have {taken[u] + uses[u]} cells")
 
         # -- commit -------------------------------------------------------------------------------
+        edges_used = self._edges_used and not remove.size  # new cells use every edge they insert
         face_cells = faces.arrays["cells"]
         face_cells[old_faces] = slots
         cells.arrays["alive"][remove] = False
@@ -1671,6 +1706,8 @@ class TetStructure:
         missing = np.flatnonzero(found < 0)
         if missing.size:
             mk = edge_keys[missing]
+            # (max << 32 | min) as max * N + min: the same order, narrow enough for the packed sort
+            mk = (mk >> 32) * max(N, 1) + (mk & 0xFFFFFFFF)
             mk_uniq, first, mk_inv = _unique_first(mk, len(missing))
             pairs = np.empty((len(first), 2), dtype=np.int32)
             launch(edge_pairs_kernel, len(first),
@@ -1719,6 +1756,7 @@ class TetStructure:
             self._emit("cell", "insert", cell_ids)
         self._links_dirty = True
         self._links_stale = True
+        self._edges_used = edges_used
         return cell_ids
 
     def _mark_origin(self, ids, origin: int) -> None:
@@ -1953,6 +1991,7 @@ class TetStructure:
         self._build_table(wp.get_device("cpu"))
         self._links_dirty = self._links_stale = True
         self.last_remap = maps
+        self._edges_used = True  # the edges left are those of live cells
         for kind in KINDS:
             self._emit(kind, "compact", st[kind].count)
         return maps
