@@ -6,6 +6,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..mesh._structure import _GOLDEN_WP, vec6i
+from ..mesh._structure import _find_root as _root
 from ..mesh._tetmesh import TET_EDGES_WP, TET_FACES_WP
 from ..sim._elements import DEGENERATE_VOLUME
 
@@ -476,15 +477,6 @@ def subtet_faces_kernel(
         if e0 >= 0 and e1 >= 0 and e2 >= 0:
             flag = 3
         face_flag[4 * i + f] = flag
-
-
-@wp.func
-def _root(parent: wp.array(dtype=wp.int32), i: int) -> int:
-    r = i
-    while parent[r] != r:
-        parent[r] = parent[parent[r]]  # path halving
-        r = parent[r]
-    return r
 
 
 @wp.kernel(enable_backward=False)
