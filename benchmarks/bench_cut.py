@@ -204,8 +204,7 @@ def drill_stroke(mesh: wb.TetMesh, segments: int, path=None, radius: float = DRI
                      materials=materials)  # fmt: skip
         ms.append(1e3 * (time.perf_counter() - t))
         split += result.split_cells
-        copies = result.new_nodes[result.node_sources[:, 0] == result.node_sources[:, 1]]  # as Cutter keeps them
-        sticky = np.union1d(sticky, np.concatenate([result.cut_nodes, copies]))
+        sticky = result.stroke_cut_nodes(sticky)  # as Cutter keeps them
     return {"step_ms_median": float(np.median(ms)), "step_ms_max": float(np.max(ms)), "tets_split": split,
             "components": result.components, "tets_after": s.cell_count}, s  # fmt: skip
 

@@ -73,8 +73,7 @@ def eggshell(cellsize: float) -> list[dict]:
         t = time.perf_counter()
         r = cut(s, sweep, collect=False, configuration="rest", node_limit=limit, cut_nodes=sticky)
         seconds += time.perf_counter() - t
-        copies = r.new_nodes[r.node_sources[:, 0] == r.node_sources[:, 1]]
-        sticky = np.union1d(sticky, np.concatenate([r.cut_nodes, copies]))
+        sticky = r.stroke_cut_nodes(sticky)
         results.append(r)
     row = _row(f"eggshell h={cellsize}, a cut per frame", mesh.tet_count, s, results, seconds)
     row["ms"] = 1e3 * seconds / FRAMES  # per frame

@@ -43,12 +43,13 @@ SIZES = {
 _VIEWS = {"probe_tumor": (1.0, -1.6, 1.1), "cut_tumor": (1.0, -1.5, 1.0), "drill_eggshell": (0.7, -1.0, -0.9)}
 
 
-def quality_histograms(meshes: dict, path: str) -> str:
+def quality_histograms(meshes: dict, path: str, qualities: dict | None = None) -> str:
     """One PNG of the tet meshes' quality: per mesh, the histogram of all dihedral angles and of the aspect ratio.
 
     Args:
         meshes: name -> :class:`~warpblob.TetMesh`.
         path: the PNG file (written atomically).
+        qualities: name -> its :class:`~warpblob.TetQuality` where already measured (else measured here).
 
     Returns:
         ``path``.
@@ -60,7 +61,7 @@ def quality_histograms(meshes: dict, path: str) -> str:
 
     fig, (ax_angle, ax_ratio) = plt.subplots(1, 2, figsize=(11, 4.2))
     for name, mesh in meshes.items():
-        q = mesh.quality()
+        q = qualities[name] if qualities and name in qualities else mesh.quality()
         ax_angle.hist(q.tet_dihedral.ravel(), bins=90, range=(0, 180), histtype="step", density=True,
                       label=f"{name} ({mesh.tet_count:,} tets, {q.dihedral_min:.1f}-{q.dihedral_max:.1f} deg)")  # fmt: skip
         ratio = q.tet_aspect_ratio[np.isfinite(q.tet_aspect_ratio)]
@@ -82,7 +83,7 @@ def _tetrahedralize(out: pathlib.Path, sizes: dict, device) -> tuple[dict, dict]
     from . import scenes
     from .tetrahedralize import tetrahedralize
 
-    meshes, info = {}, {}
+    meshes, info, qualities = {}, {}, {}
     jobs = [("tumor", scenes.tumor(), sizes["tumor"], {}), ("eggshell", scenes.eggshell(), sizes["eggshell"], {})]
     layers = scenes.head_materials()
     jobs.append(("head", layers["skull"], sizes["head"], {"materials": layers}))
@@ -90,7 +91,7 @@ def _tetrahedralize(out: pathlib.Path, sizes: dict, device) -> tuple[dict, dict]
         t0 = time.perf_counter()
         mesh = tetrahedralize(model, cellsize=h, device=device, **options)
         seconds = time.perf_counter() - t0
-        q = mesh.quality()
+        q = qualities[name] = mesh.quality()
         meshes[name] = mesh
         info[name] = {"cellsize": h, "seconds": round(seconds, 3), "tets": mesh.tet_count, "nodes": mesh.node_count,
                       "dihedral_min": round(q.dihedral_min, 2), "dihedral_max": round(q.dihedral_max, 2),
@@ -98,7 +99,7 @@ def _tetrahedralize(out: pathlib.Path, sizes: dict, device) -> tuple[dict, dict]
         if mesh.material is not None:
             ids, counts = np.unique(mesh.material, return_counts=True)
             info[name]["tets_per_material"] = {int(i): int(c) for i, c in zip(ids, counts)}
-    quality_histograms(meshes, str(out / "tet_quality.png"))
+    quality_histograms(meshes, str(out / "tet_quality.png"), qualities)
     return meshes, info
 
 

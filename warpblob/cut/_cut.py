@@ -140,6 +140,13 @@ class CutResult:
         """
         return self.split_added / self.split_cells if self.split_cells else 0.0
 
+    def stroke_cut_nodes(self, previous=None) -> np.ndarray:
+        """The cut nodes a stroke cut step by step carries on (``cut(..., cut_nodes=)`` of its next step):
+        ``previous``, this cut's :attr:`cut_nodes` and the copies it made of them, as a sorted int64 array."""
+        copies = self.new_nodes[self.node_sources[:, 0] == self.node_sources[:, 1]]
+        kept = np.zeros(0, np.int64) if previous is None else np.asarray(previous, np.int64)
+        return np.union1d(kept, np.concatenate([self.cut_nodes, copies]).astype(np.int64))
+
     def summary(self) -> dict:
         """The counts and seconds as plain numbers (for JSON)."""
         return {

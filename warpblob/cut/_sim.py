@@ -104,6 +104,7 @@ class Cutter:
         self._last = None  # time of the last sample taken (recorded or not)
         self._node_limit: int | None = None  # nodes before the stroke: only their edges are cut
         self._cut_nodes = np.zeros(0, dtype=np.int64)  # nodes the stroke snapped to so far, and their copies
+        self._radius: float | None = None
 
     def step(self, sim, t0: float, t1: float) -> CutResult | None:
         """Cut for the blade's motion from ``t0`` to ``t1`` (seconds); the result, or None when nothing was cut.
@@ -141,8 +142,7 @@ class Cutter:
         result = cut(structure, sweep, snap=self.snap, collect=False, configuration="rest",
                      node_limit=self._node_limit, cut_nodes=self._cut_nodes, materials=self.materials,
                      device=sim.device, threads=sim.threads)  # fmt: skip
-        copies = result.new_nodes[result.node_sources[:, 0] == result.node_sources[:, 1]]
-        self._cut_nodes = np.union1d(self._cut_nodes, np.concatenate([result.cut_nodes, copies]))
+        self._cut_nodes = result.stroke_cut_nodes(self._cut_nodes)
         apply_cut(sim, result)
         self.results.append(result)
         return result
@@ -164,14 +164,25 @@ class Cutter:
             times = times[first:] if before is None else np.append(before, times[first:])
         edges_a, edges_b = cutting_edges(self.tool, self.path.pose(times), first=not started)
         rows, strips = edges_a.shape[:2]
-        rest = _to_rest(np.concatenate([edges_a, edges_b]).reshape(-1, 3), structure, sim).reshape(2, rows, strips, 3)
+        if self._radius is None:  # the search radius of the rest-frame lookup, once per stroke
+            self._radius = _search_radius(structure)
+        points = np.concatenate([edges_a, edges_b]).reshape(-1, 3)
+        rest = _to_rest(points, structure, sim, self._radius).reshape(2, rows, strips, 3)
         self._rows_a.extend(rest[0])
         self._rows_b.extend(rest[1])
         self._last = float(times[-1])
 
 
-def _to_rest(points: np.ndarray, structure, sim) -> np.ndarray:
-    """(K, 3) world points carried to the rest frame by the nearest node's displacement (a hash grid)."""
+def _search_radius(structure) -> float:
+    """Twice the median live edge length at rest: how far the rest-frame lookup looks for a node."""
+    rest = np.asarray(structure.node_rest, dtype=np.float32)
+    en = np.asarray(structure.edge_nodes)[np.asarray(structure.edge_alive)]
+    return 2.0 * float(np.median(np.linalg.norm(rest[en[:, 0]] - rest[en[:, 1]], axis=1))) if len(en) else 2.0
+
+
+def _to_rest(points: np.ndarray, structure, sim, radius: float) -> np.ndarray:
+    """(K, 3) world points carried to the rest frame by the displacement of the nearest node within ``radius``
+    (a hash grid)."""
     import warp as wp
 
     from .._parallel import launch
@@ -180,9 +191,6 @@ def _to_rest(points: np.ndarray, structure, sim) -> np.ndarray:
     dev = sim.device
     x = np.asarray(sim.positions, dtype=np.float32)
     rest = np.asarray(structure.node_rest, dtype=np.float32)
-    en = np.asarray(structure.edge_nodes)[np.asarray(structure.edge_alive)]
-    edge = float(np.median(np.linalg.norm(rest[en[:, 0]] - rest[en[:, 1]], axis=1))) if len(en) else 1.0
-    radius = 2.0 * edge
     pos = wp.array(x, dtype=wp.vec3, device=dev)
     grid = wp.HashGrid(64, 64, 64, device=dev)
     grid.build(pos, radius)

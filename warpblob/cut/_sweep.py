@@ -115,7 +115,7 @@ class SweepSurface:
             raise CutError(f"SweepSurface.from_blade: {len(a)} a_points but {len(b)} b_points")
         if len(a) < 2:
             raise CutError(f"SweepSurface.from_blade: a stroke needs at least two samples, got {len(a)}")
-        return cls(_strip(a, b), np.zeros(2 * (len(a) - 1), dtype=np.int32))
+        return cls.from_edges(a[:, None], b[:, None])
 
     @classmethod
     def plane(cls, origin, normal, extent: float) -> SweepSurface:

@@ -55,6 +55,22 @@ def add_scenario_parser(subparsers):
     return p
 
 
+def _wanted(frame_count: int, frames: int) -> set:
+    """The indices of ``frames`` recorded frames, evenly spaced over ``frame_count``, to picture."""
+    return set(np.linspace(0, frame_count - 1, frames).round().astype(int).tolist()) if frames else set()
+
+
+def _record(sim, out: pathlib.Path, args, steps: int, on_frame, **options) -> tuple[pathlib.Path, float]:
+    """Record ``steps`` steps of ``sim`` into ``out/NAME.usda|usdc``; the stage and the seconds it took."""
+    stage = out / f"{args.name}.{'usdc' if args.usdc else 'usda'}"
+    began = time.perf_counter()
+    try:
+        sim.record(stage, steps, every=args.every, progress=True, on_frame=on_frame, **options)
+    except OSError as exc:
+        raise WarpblobError(str(exc)) from None
+    return stage, time.perf_counter() - began
+
+
 def run_scenario(args) -> int:
     """Run the ``scenario`` subcommand; returns the exit code (errors are raised as WarpblobError)."""
     from . import ALL
@@ -84,7 +100,7 @@ def run_scenario(args) -> int:
     low, high = start_nodes.min(axis=0), start_nodes.max(axis=0)
     camera = FrameCamera(low - 0.25 * (high - low), high + 0.25 * (high - low), direction)
     frame_count = 1 + args.steps // args.every
-    wanted = set(np.linspace(0, frame_count - 1, args.frames).round().astype(int).tolist()) if args.frames else set()
+    wanted = _wanted(frame_count, args.frames)
     pictures = []
     peak = [0.0]
 
@@ -96,13 +112,7 @@ def run_scenario(args) -> int:
             title = f"{args.name}  t = {sim.time:.3f} s   contact force {force:.4g} N   volume {change:+.2f}%"
             pictures.append(render_frame(sim, str(out / f"{args.name}_{index:04d}.png"), camera, title=title))
 
-    stage = out / f"{args.name}.{'usdc' if args.usdc else 'usda'}"
-    began = time.perf_counter()
-    try:
-        sim.record(stage, args.steps, every=args.every, progress=True, on_frame=on_frame)
-    except OSError as exc:
-        raise WarpblobError(str(exc)) from None
-    seconds = time.perf_counter() - began
+    stage, seconds = _record(sim, out, args, args.steps, on_frame)
     x = sim.positions
     c = sim.stats["contact"]["seconds_total"]
     per_step = {name: 1e3 * value / args.steps for name, value in c.items()}
@@ -138,7 +148,7 @@ def _run_cutting(args, out: pathlib.Path, cellsize: float, direction, device) ->
     low[2] = min(low[2], sim.ground[0]) if sim.ground is not None else low[2]
     camera = FrameCamera(low - 0.1 * (high - low), high + 0.1 * (high - low), direction)
     frame_count = 1 + steps // args.every
-    wanted = set(np.linspace(0, frame_count - 1, args.frames).round().astype(int).tolist()) if args.frames else set()
+    wanted = _wanted(frame_count, args.frames)
     pictures = []
     colors = HEAD_COLORS if args.name == "craniotomy" else None  # the layered head in its tissues' colours
 
@@ -149,13 +159,7 @@ def _run_cutting(args, out: pathlib.Path, cellsize: float, direction, device) ->
             png = str(out / f"{args.name}_{index:04d}.png")
             pictures.append(render_cut_frame(sim, png, camera, material_colors=colors, title=title))
 
-    stage = out / f"{args.name}.{'usdc' if args.usdc else 'usda'}"
-    began = time.perf_counter()
-    try:
-        sim.record(stage, steps, every=args.every, progress=True, material_colors=colors, on_frame=on_frame)
-    except OSError as exc:
-        raise WarpblobError(str(exc)) from None
-    seconds = time.perf_counter() - began
+    stage, seconds = _record(sim, out, args, steps, on_frame, material_colors=colors)
     rows = drill_steps(sim)  # every cut (a drill's steps, a scalpel's strokes)
     table = out / f"{args.name}_steps.json"
     tmp = table.with_suffix(".json.tmp")

@@ -85,5 +85,5 @@ def cut_tumor(cellsize: float = 0.2, *, poisson: float = 0.45, device=None, thre
         start[2] = end[2] = low[2] - 0.1
         path = Path.line(start, end, duration, align=True, t0=k * duration)
         sim.add_tool(blade, path, cut=True, mode="on_release")
-    sim.stats["scenario"] = {"name": "cut_tumor", "strokes": len(STROKES)}
+    sim.stats["scenario"] = {"name": "cut_tumor", "strokes": len(STROKES), "after": SETTLE_STEPS}
     return sim

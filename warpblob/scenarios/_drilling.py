@@ -125,7 +125,7 @@ def drill_eggshell(cellsize: float = 0.12, *, holes: int = 1, rigid: bool = True
         end = -np.sqrt(inner**2 - far**2) + OVERSHOOT  # past the inside's highest point under it
         path = Path.line((x, y, start), (x, y, end), duration, align=True, t0=k * duration)
         sim.add_tool(drill, path, cut=True, mode="progressive")
-    sim.stats["scenario"] = {"name": "drill_eggshell", "holes": int(holes), "steps": total_steps(sim)}
+    sim.stats["scenario"] = {"name": "drill_eggshell", "holes": int(holes), "after": FALL_STEPS}
     return sim
 
 
@@ -221,18 +221,17 @@ def craniotomy(cellsize: float = 0.2, *, cross_section: bool = True, young=None,
         end = (float(high[0]) + 0.2, FRONT_CUT, float(low[2]) - 0.2)
         sim.add_tool(blade, Path.line(start, end, STROKE_STEPS * sim.dt, align=True, t0=t0), cut=True,
                      mode="on_release")  # fmt: skip
-    sim.stats["scenario"] = {"name": "craniotomy", "holes": len(CRANIOTOMY_SITES), "cross_section": cross_section}
+    sim.stats["scenario"] = {"name": "craniotomy", "holes": len(CRANIOTOMY_SITES), "cross_section": cross_section,
+                             "after": FALL_STEPS}
     return sim
 
 
 def total_steps(sim: Simulation) -> int:
-    """Steps that play a cutting or drilling scenario to its end: every cutter's path, then the pieces' fall
-    (:data:`FALL_STEPS` for drilling, :data:`~warpblob.scenarios._cutting.SETTLE_STEPS` for the scalpel)."""
-    from ._cutting import SETTLE_STEPS
-
+    """Steps that play a cutting or drilling scenario to its end: every cutter's path, then the steps the
+    scenario gives its pieces to fall (``sim.stats["scenario"]["after"]``: :data:`FALL_STEPS` for drilling,
+    :data:`~warpblob.scenarios._cutting.SETTLE_STEPS` for the scalpel)."""
     last = max((c.path.t1 for c in sim.cutters), default=0.0)
-    name = sim.stats.get("scenario", {}).get("name")
-    return int(round(last / sim.dt)) + (SETTLE_STEPS if name == "cut_tumor" else FALL_STEPS)
+    return int(round(last / sim.dt)) + int(sim.stats.get("scenario", {}).get("after", FALL_STEPS))
 
 
 def drill_steps(sim: Simulation) -> list[dict]:
