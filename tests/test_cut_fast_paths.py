@@ -11,6 +11,7 @@ from warpblob.cut import SweepSurface, cut
 from warpblob.cut import _kernels as k
 from warpblob.cut._cut import _boxes, _planes
 from warpblob.mesh import TetStructure, box_tetmesh
+from warpblob.mesh import _structure as structure_module
 from warpblob.mesh._structure import _unique_first, _unique_inverse, vec6i
 
 
@@ -107,9 +108,13 @@ def test_packed_unique_is_numpys(top):
         np.testing.assert_array_equal(np.ravel(x), np.ravel(y))
 
 
-def test_components_match_a_graph_reference():
-    """Two crossing planar cuts: the kernel's labels are the connected components of the face graph, numbered
-    by lowest cell, -1 for the dead cells; the count alone agrees."""
+@pytest.mark.parametrize("cells_per_range", [1 << 30, 97])
+def test_components_match_a_graph_reference(cells_per_range, monkeypatch):
+    """Two crossing planar cuts: the kernels' labels are the connected components of the face graph, numbered
+    by lowest cell, -1 for the dead cells; the count alone agrees. Whole (one range) and in ranges of 97
+    cells run side by side (many faces between ranges, the cut's new cells in the last ones)."""
+    monkeypatch.setattr(structure_module, "_COMPONENT_RANGE", cells_per_range)
+    monkeypatch.setattr(structure_module, "thread_count", lambda: 8)
     s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (4, 4, 4)))
     cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.1, 0), 3.0), collect=False)
     cut(s, SweepSurface.plane((0.5, 0.5, 0.49), (0, 0.1, 1), 3.0), collect=False)
@@ -161,3 +166,23 @@ def test_edges_used_flag_only_when_every_edge_is_used(device):
     s.remove_cell(0)
     states.append(s._edges_used)
     assert states == [True, False, True, False, False]
+
+
+def _cut_twice(mesh):
+    s = TetStructure.from_tetmesh(mesh)
+    cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.1, 0), 3.0), collect=False)
+    cut(s, SweepSurface.plane((0.5, 0.5, 0.49), (0, 0.1, 1), 3.0))
+    return s
+
+
+def test_edge_sort_beside_the_face_sort_changes_nothing(monkeypatch):
+    """A batch edit sorts a large batch's missing edges on a pool thread: every array of the structure is
+    the same as with the sort in turn."""
+    mesh = box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5))
+    monkeypatch.setattr(structure_module, "_SIDE_SORT", 1 << 40)
+    inline = _cut_twice(mesh)
+    monkeypatch.setattr(structure_module, "_SIDE_SORT", 1)
+    side = _cut_twice(mesh)
+    for kind, store in inline._stores.items():
+        for name in store.arrays:
+            np.testing.assert_array_equal(store[name], side._stores[kind][name], err_msg=f"{kind}.{name}")

