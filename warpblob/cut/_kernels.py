@@ -124,9 +124,7 @@ def intersect_edges_few_kernel(
     [0, 1] by more than 1e-4, so the test would give -1 too (the same hits, bit for bit, at a fraction
     of the cost where a plane's box holds every edge)."""
     e = wp.tid() + offset
-    hit_t[e] = -1.0
-    hit_tri[e] = -1
-    flags[e] = 0
+    flags[e] = 0  # hit_t and hit_tri are written at hits only (read there only)
     if edge_ok[e] == wp.uint8(0):
         return
     p = positions[edge_nodes[e][0]]
