@@ -195,3 +195,75 @@ def test_edge_sort_beside_the_face_sort_changes_nothing(monkeypatch):
     for kind, store in inline._stores.items():
         for name in store.arrays:
             np.testing.assert_array_equal(store[name], side._stores[kind][name], err_msg=f"{kind}.{name}")
+
+
+def test_rest_grid_finds_every_cell_a_box_meets():
+    """The rest-frame grid's query holds every live cell whose rest box meets a query box (brute force), for
+    boxes, points and boxes off the mesh; its answer is ascending and has no dead cells."""
+    rng = np.random.default_rng(4)
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (2, 1, 1), (20, 10, 8)))
+    cut(s, SweepSurface.plane((1.01, 0.5, 0.5), (1, 0.2, 0.1), 3.0), collect=False)  # dead cells, newer ones
+    corners = np.asarray(s.node_rest)[np.asarray(s.cell_nodes)]
+    lo_c, hi_c = corners.min(axis=1), corners.max(axis=1)
+    live = np.asarray(s.cell_alive)
+    for _ in range(20):
+        a, b = rng.uniform(-0.3, 2.3, (2, 3))
+        lower, upper = np.minimum(a, b), np.minimum(np.minimum(a, b) + rng.uniform(0, 0.2, 3), np.maximum(a, b))
+        for lo, hi in ((lower, upper), (lower, lower)):
+            got = s._cells_near(lo, hi)
+            want = np.flatnonzero(live & np.all((lo_c <= hi) & (hi_c >= lo), axis=1))
+            assert got is not None and np.all(np.diff(got) > 0) and live[got].all()
+            assert np.isin(want, got).all()
+    assert len(s._cells_near((5, 5, 5), (6, 6, 6))) == len(s.cell_nodes) - s._rest_grid.cells  # only newer ones
+    assert s._cells_near((-1, -1, -1), (3, 3, 3)) is None  # the whole mesh: a pass over everything pays
+
+
+def _drill(mesh, near_search, monkeypatch):
+    """A progressive drill stroke as the simulator's cutter makes it (rest frame, node limit, kept cut nodes)."""
+    import warpblob as wb
+    from warpblob.cut import _cut as cut_module
+
+    monkeypatch.setattr(cut_module, "_NEAR_SEARCH", near_search)
+    drill = wb.tools.Drill(0.2, 1.0, segments=8)
+    path = wb.tools.Path.line((1.01, 0.98, 0.5), (1.01, 0.98, -0.1), 10 / 60, align=True)
+    s = TetStructure.from_tetmesh(mesh)
+    limit, sticky, pieces = len(s.node_rest), np.zeros(0, np.int64), []
+    for k in range(1, 11):
+        sweep = SweepSurface.from_path(drill, path, path.t0, path.t0 + k / 60, 1 / 60)
+        r = cut(s, sweep, collect=False, configuration="rest", node_limit=limit, cut_nodes=sticky)
+        sticky = r.stroke_cut_nodes(sticky)
+        pieces.append(r.components)
+    return s, pieces
+
+
+def test_rest_frame_local_search_cuts_the_same(monkeypatch):
+    """A progressive drill through a plate with the search of the cells near the sweep (every mesh) and
+    without it (none): every array of the structure the same, and the piece counts (counted round the new
+    cells while nothing is severed) equal a count of the whole mesh after every step."""
+    mesh = box_tetmesh((0, 0, 0), (2, 2, 0.4), (20, 20, 4))
+    local, pieces = _drill(mesh, 0, monkeypatch)
+    whole, whole_pieces = _drill(mesh, 1 << 40, monkeypatch)
+    for kind, store in local._stores.items():
+        for name in store.arrays:
+            np.testing.assert_array_equal(store[name], whole._stores[kind][name], err_msg=f"{kind}.{name}")
+    assert pieces == whole_pieces and pieces[-1] == 2  # the plug comes free at the end
+    local._pieces = None  # forget the remembered count: count every cell
+    assert local._component_count() == 2 == int(local.components().max()) + 1
+
+
+def test_piece_count_round_new_cells_is_the_whole_count(monkeypatch):
+    """Random strokes and planes, several per mesh: after every cut the count the cutter reports (round the
+    new cells where that shows nothing was severed) equals the count of a union-find over every cell."""
+    rng = np.random.default_rng(12)
+    for trial in range(6):
+        s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (6, 6, 6)))
+        s._component_count()  # known before the first cut: the local count is tried from the first one
+        for _ in range(4):
+            if rng.random() < 0.5:
+                a = rng.uniform(0, 1, (2, 3)) + [0, 0, 0.6]
+                sweep = SweepSurface.from_blade(a, a - [0, 0, rng.uniform(0.3, 1.5)])
+            else:
+                sweep = SweepSurface.plane(rng.uniform(0.2, 0.8, 3), rng.normal(size=3), rng.uniform(0.3, 2.0))
+            r = cut(s, sweep, collect=bool(rng.random() < 0.3))
+            labels = s.components()  # all cells, labels (not the remembered count)
+            assert r.components == int(labels.max()) + 1, trial

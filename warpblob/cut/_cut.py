@@ -278,29 +278,54 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         chosen[selected[selected >= 0]] = 1  # a lookup table: a gather, not isin's sort
         cell_alive_np = cell_alive_np & chosen[np.maximum(material, 0)] & (material >= 0).view(np.uint8)
     cell_alive_wp = _shared(cell_alive_np, wp.uint8, dev)
-    if selected is None and structure._edges_used:  # every edge slot is a live cell's (a fresh or compacted mesh)
-        edge_ok = wp.full(E, 1, dtype=wp.uint8, device=dev)
-    else:
-        edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
-        launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads,
-               min_chunk=_CHEAP)  # fmt: skip
-    if node_limit is not None:
-        old = np.maximum(edge_nodes_np[:, 0], edge_nodes_np[:, 1]) < int(node_limit)  # (not .max(axis=1): 10x slower)
-        edge_ok.assign(edge_ok.numpy() & old.view(np.uint8))
     frame = positions_np if configuration == "current" else np.asarray(structure.node_rest)
     positions = _shared(frame, wp.vec3, dev)
-    hit_t = wp.empty(E, dtype=float, device=dev)
-    hit_tri = wp.empty(E, dtype=wp.int32, device=dev)
-    flags = wp.empty(E, dtype=wp.int32, device=dev)
+    sticky = None if cut_nodes is None else np.asarray(cut_nodes, dtype=np.int64).ravel()
+    if sticky is not None and sticky.size and (sticky.min() < 0 or sticky.max() >= N):
+        raise CutError(f"cut: cut_nodes must be node indices in [0, {N}), got {int(sticky.min())}.."
+                       f"{int(sticky.max())}; the structure is unchanged")  # fmt: skip
+    # in the rest frame a sweep meets only the cells near it: the edges of the cells whose rest boxes meet
+    # a triangle's (the structure's grid of rest boxes), and later the cells whose boxes hold a hit's end,
+    # instead of passes over every edge and cell (the same hits and cells: an edge's box lies in its
+    # cells', a node in its cells')
+    near = None
+    if configuration == "rest":  # the triangles' boxes as the kernels pad them
+        near = _near_cells(structure, *[b.numpy() for b in boxes], cell_alive_np)
+    if near is not None:
+        mark = np.zeros(E, dtype=bool)  # (marks, not a sort)
+        mark[np.asarray(structure.cell_edges)[near].ravel()] = True
+        tested = np.flatnonzero(mark).astype(np.int32)
+        if node_limit is not None:
+            ends_t = edge_nodes_np[tested]
+            tested = tested[np.maximum(ends_t[:, 0], ends_t[:, 1]) < int(node_limit)]
+        tested_nodes = _shared(edge_nodes_np[tested], wp.vec2i, dev)
+        edge_ok = wp.full(len(tested), 1, dtype=wp.uint8, device=dev)
+    else:
+        tested, tested_nodes = None, edge_nodes
+        if selected is None and structure._edges_used:  # every edge slot is a live cell's (fresh or compacted)
+            edge_ok = wp.full(E, 1, dtype=wp.uint8, device=dev)
+        else:
+            edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
+            launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads,
+                   min_chunk=_CHEAP)  # fmt: skip
+        if node_limit is not None:
+            old = np.maximum(edge_nodes_np[:, 0], edge_nodes_np[:, 1]) < int(node_limit)  # (not .max(axis=1): 10x slower)
+            edge_ok.assign(edge_ok.numpy() & old.view(np.uint8))
+    T = len(tested) if tested is not None else E
+    hit_t = wp.empty(T, dtype=float, device=dev)
+    hit_tri = wp.empty(T, dtype=wp.int32, device=dev)
+    flags = wp.empty(T, dtype=wp.int32, device=dev)
     if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
-        launch(k.intersect_edges_few_kernel, E, [edge_nodes, edge_ok, positions, *boxes, corners, *_planes(sweep, dev)],
-               [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
+        launch(k.intersect_edges_few_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners,
+               *_planes(sweep, dev)], [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
     else:
         bvh = wp.Bvh(*boxes)
-        launch(k.intersect_edges_kernel, E, [edge_nodes, edge_ok, positions, bvh.id, corners], [hit_t, hit_tri, flags],
-               dev, threads, min_chunk=1024)  # fmt: skip
+        launch(k.intersect_edges_kernel, T, [tested_nodes, edge_ok, positions, bvh.id, corners],
+               [hit_t, hit_tri, flags], dev, threads, min_chunk=1024)  # fmt: skip
     hits = _compact(flags, dev, threads)
     t_hit = hit_t.numpy()[hits].astype(np.float64)
+    if tested is not None:
+        hits = tested[hits].astype(np.int32)  # (ascending: tested is)
     t1 = time.perf_counter()
     result.seconds["intersection"] = t1 - t_start
 
@@ -318,11 +343,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     node_cut = np.zeros(N, dtype=np.uint8)
     node_cut[ends[t_hit < snap, 0]] = 1
     node_cut[ends[t_hit > 1.0 - snap, 1]] = 1
-    if cut_nodes is not None:
-        sticky = np.asarray(cut_nodes, dtype=np.int64).ravel()
-        if sticky.size and (sticky.min() < 0 or sticky.max() >= N):
-            raise CutError(f"cut: cut_nodes must be node indices in [0, {N}), got {int(sticky.min())}.."
-                           f"{int(sticky.max())}; the structure is unchanged")  # fmt: skip
+    if sticky is not None:
         node_cut[sticky] = 1
     node_cut[state.protected] = 0
     dropped = np.zeros(len(hits), dtype=bool)
@@ -331,12 +352,18 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     # nodes and the ends of cut edges are such nodes); one pass over the cells, then each round codes only these
     at_hit = np.zeros(N, dtype=np.uint8)
     at_hit[ends.ravel()] = 1
-    if cut_nodes is not None:
+    if sticky is not None:
         at_hit[sticky] = 1
-    flags_c = wp.empty(C, dtype=wp.int32, device=dev)
-    launch(k.cells_at_nodes_kernel, C, [arrays["cell_nodes"], arrays["cell_alive"], _shared(at_hit, wp.uint8, dev)],
-           [flags_c], dev, threads, min_chunk=_CHEAP)  # fmt: skip
-    candidates = _compact(flags_c, dev, threads)
+    if near is not None:  # the cells whose boxes hold one of those nodes
+        at = np.flatnonzero(at_hit)
+        near = _near_cells(structure, frame[at], frame[at], cell_alive_np)
+    if near is not None:
+        candidates = near[at_hit[cell_nodes_np[near]].any(axis=1)].astype(np.int32)
+    else:
+        flags_c = wp.empty(C, dtype=wp.int32, device=dev)
+        launch(k.cells_at_nodes_kernel, C, [arrays["cell_nodes"], arrays["cell_alive"],
+               _shared(at_hit, wp.uint8, dev)], [flags_c], dev, threads, min_chunk=_CHEAP)  # fmt: skip
+        candidates = _compact(flags_c, dev, threads)
     candidates_wp = wp.array(candidates, dtype=wp.int32, device=dev)
     code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
     while True:
@@ -411,6 +438,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
 
     # -- 4. topology --------------------------------------------------------------------------------------
     node_count = len(structure.node_rest)
+    pieces_before = structure._known_pieces()
     try:
         ids = [structure.insert_nodes(r, p, origin=NODE_ORIGINS[o]) for o, r, p in plan["nodes"]]
         structure._mark_origin(plan["separated"], NODE_ORIGINS["copy"])
@@ -429,12 +457,28 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.seconds["topology"] = t4 - t3
 
     # -- 5. garbage collection -------------------------------------------------------------------------
+    # the pieces: by a union-find around the new cells where that shows the cut severed nothing, else all
+    result.components = structure._pieces_after(pieces_before, plan["remove"], added)
     if collect:
         result.remap = structure.collect_garbage()
-    result.components = structure._component_count()
+        structure._remember_pieces(result.components)  # (a compaction renumbers, it joins and parts nothing)
     result.seconds["gc"] = time.perf_counter() - t4
     structure.stats["last_cut"] = result.summary()
     return result
+
+
+#: edges from which a rest-frame cut searches the cells near its sweep (below, passes over all cost less)
+_NEAR_SEARCH = 1 << 15
+
+
+def _near_cells(structure, lower, upper, cell_alive) -> np.ndarray | None:
+    """The live (selected) cells whose rest boxes meet a box ``[lower[i], upper[i]]`` ((B, 3) each),
+    ascending, or None where a pass over every edge and cell is as cheap (a small mesh, boxes over much of
+    it)."""
+    if len(structure.edge_nodes) < _NEAR_SEARCH:
+        return None
+    near = structure._cells_near(lower, upper)
+    return None if near is None else near[cell_alive[near] != 0]
 
 
 def _materials(materials) -> np.ndarray | None:

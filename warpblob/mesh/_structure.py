@@ -80,6 +80,8 @@ _CHEAP = 16384
 _COMPONENT_RANGE = 65536
 #: missing edges from which a batch edit sorts them on a pool thread beside the faces' sort
 _SIDE_SORT = 1 << 16
+#: rings of cells round a batch edit's new cells in which they must be joined to keep the piece count
+_PIECE_RINGS = 4
 
 
 # ---------------------------------------------------------------------------
@@ -451,6 +453,21 @@ def live_roots_kernel(parent: wp.array(dtype=wp.int32), cell_alive: wp.array(dty
     counts[r] = n
 
 
+@wp.kernel(enable_backward=False)
+def rest_boxes_kernel(rest: wp.array(dtype=wp.vec3), cell_nodes: wp.array(dtype=wp.vec4i), offset: int,
+                      lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3)):  # fmt: skip
+    """Per cell: the box of its four nodes' rest positions."""
+    c = wp.tid() + offset
+    t = cell_nodes[c]
+    lo = rest[t[0]]
+    hi = lo
+    for k in range(1, 4):
+        lo = wp.min(lo, rest[t[k]])
+        hi = wp.max(hi, rest[t[k]])
+    lower[c] = lo
+    upper[c] = hi
+
+
 @wp.func
 def _triple_key(a: int, b: int, c: int, n: wp.int64) -> wp.int64:
     """Order-free key of three node ids below ``n`` (``n**3 < 2**63``): the sorted triple in base ``n``."""
@@ -758,6 +775,71 @@ def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
     return np.where(refs >= 0, index_map[np.maximum(refs, 0)], -1).astype(np.int32)
 
 
+class _RestCellGrid:
+    """Cells ``[0, cells)`` bucketed by the grid cell of their rest box's lower corner (a uniform grid whose
+    spacing is the largest box side, so a box meets a query box only if its corner's bucket is at most one
+    bucket below the query's), sorted by bucket with each bucket's run (CSR): a query reads the runs of the
+    buckets its boxes reach, each once."""
+
+    def __init__(self, rest: np.ndarray, cell_nodes: np.ndarray, clock: int):
+        self.clock, self.cells = clock, len(cell_nodes)
+        cpu = wp.get_device("cpu")
+        self.lower = np.empty((self.cells, 3), np.float32)
+        self.upper = np.empty((self.cells, 3), np.float32)
+        launch(rest_boxes_kernel, self.cells,
+               [wp.array(np.ascontiguousarray(rest, dtype=np.float32), dtype=wp.vec3, device=cpu, copy=False),
+                wp.array(np.ascontiguousarray(cell_nodes, dtype=np.int32), dtype=wp.vec4i, device=cpu, copy=False)],
+               [wp.array(self.lower, dtype=wp.vec3, device=cpu, copy=False),
+                wp.array(self.upper, dtype=wp.vec3, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
+        if self.cells == 0:
+            self.origin, self.spacing, self.dims = np.zeros(3), 1.0, np.ones(3, np.int64)
+            self.order, self.start = np.zeros(0, np.int64), np.zeros(2, np.int64)
+            return
+        self.spacing = max(float((self.upper - self.lower).max()), 1e-12)
+        self.origin = self.lower.min(axis=0).astype(np.float64)
+        self.dims = np.floor((self.upper.max(axis=0) - self.origin) / self.spacing).astype(np.int64) + 1
+        keys = self._key(self._bucket(self.lower))
+        self.order = np.argsort(keys, kind="stable")
+        self.start = np.searchsorted(keys[self.order], np.arange(int(np.prod(self.dims)) + 1))
+
+    def _bucket(self, points: np.ndarray) -> np.ndarray:
+        b = np.floor((np.asarray(points, np.float64) - self.origin) / self.spacing).astype(np.int64)
+        return np.clip(b, 0, self.dims - 1)
+
+    def _key(self, b: np.ndarray) -> np.ndarray:
+        return (b[..., 2] * self.dims[1] + b[..., 1]) * self.dims[0] + b[..., 0]
+
+    def query(self, lower: np.ndarray, upper: np.ndarray, most: int) -> np.ndarray | None:
+        """The cells in the buckets that the boxes ``[lower[i], upper[i]]`` ((B, 3) each) reach, ascending:
+        every cell whose box meets one of them, and some that do not; None if more than ``most``."""
+        lower = np.asarray(lower, np.float64).reshape(-1, 3)
+        upper = np.asarray(upper, np.float64).reshape(-1, 3)
+        top = self.origin + self.dims * self.spacing
+        inside = ~(np.any(upper < self.origin, axis=1) | np.any(lower > top, axis=1))
+        lower, upper = lower[inside], upper[inside]
+        if self.cells == 0 or len(lower) == 0:
+            return np.zeros(0, np.int64)
+        lo = self._bucket(lower - self.spacing)  # a box meeting the query has its corner's bucket here ...
+        n = self._bucket(upper) - lo + 1  # ... up to the query's upper corner's
+        count = n.prod(axis=1)
+        if int(count.sum()) > most:
+            return None
+        box = np.repeat(np.arange(len(lo)), count)  # every (box, bucket) pair
+        k = np.arange(len(box)) - np.repeat(np.cumsum(count) - count, count)
+        nb = n[box]
+        offset = np.stack([k % nb[:, 0], (k // nb[:, 0]) % nb[:, 1], k // (nb[:, 0] * nb[:, 1])], axis=1)
+        reached = np.zeros(len(self.start) - 1, dtype=bool)
+        reached[self._key(lo[box] + offset)] = True
+        buckets = np.flatnonzero(reached)
+        first, last = self.start[buckets], self.start[buckets + 1]
+        length = last - first
+        total = int(length.sum())
+        if total > most:
+            return None
+        at = np.repeat(first - np.cumsum(length) + length, length) + np.arange(total)
+        return np.sort(self.order[at])
+
+
 class _Store:
     """One entity kind as structure of arrays: slots ``[0, count)`` in use, capacity doubling.
 
@@ -1009,6 +1091,13 @@ class TetStructure:
         self.stats: dict = {}
         #: grows on every change of the cells (insert, update, remove, compaction): a recorder's topology clock
         self.topology_version = 0
+        # the piece count and the connectivity clock it was counted at (any cell or face event moves the clock)
+        self._connectivity_version = 0
+        self._pieces: tuple[int, int] | None = None
+        # the cells' rest boxes in a uniform grid (cutting's local search), and the clock it was built at
+        # (a cell's nodes or a rest position changed, or a compaction, moves the clock)
+        self._rest_clock = 0
+        self._rest_grid: _RestCellGrid | None = None
         self._table_keys = np.full(16, EMPTY, dtype=np.int64)
         self._table_values = np.full(16, EMPTY, dtype=np.int32)
         self._table_bits = 4
@@ -1268,6 +1357,10 @@ class TetStructure:
     def _emit(self, kind: str, action: str, index: int) -> None:
         if kind == "cell" or action == "compact":
             self.topology_version += 1
+        if kind in ("cell", "face") or action == "compact":
+            self._connectivity_version += 1
+        if (kind == "cell" and action == "update") or action == "compact":
+            self._rest_clock += 1
         if kind != "node" and (action in ("remove", "update") or (kind == "edge" and action == "insert")):
             self._edges_used = False
         for callback in list(self._observers):
@@ -1521,6 +1614,7 @@ class TetStructure:
         store = self._stores["node"].arrays
         if rest is not None:
             store["rest"][v] = self._point(rest, "rest")
+            self._rest_clock += 1
         if position is not None:
             store["position"][v] = self._point(position, "position")
         self._emit("node", "update", v)
@@ -1854,19 +1948,112 @@ class TetStructure:
         """(C,) int32 connected piece of every cell slot (cells joined through shared faces), -1 for dead cells.
 
         Pieces are numbered 0, 1, ... in the order of their lowest cell.
-        A sequential union-find over the shared faces in one Warp kernel thread.
+        A union-find over the shared faces: one per range of cells side by side, then the faces between
+        ranges and the numbering in one Warp kernel thread.
 
         Example:
             >>> from warpblob.mesh import box_tetmesh
             >>> int(TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (2, 2, 2))).components().max()) + 1
             1
         """
-        labels, _ = self._components(True)
+        labels, count = self._components(True)
+        self._remember_pieces(count)
         return labels
 
     def _component_count(self) -> int:
-        """The number of connected pieces (:meth:`components` without the labels)."""
-        return self._components(False)[1]
+        """The number of connected pieces (:meth:`components` without the labels; remembered until a cell or
+        face changes)."""
+        known = self._known_pieces()
+        if known is None:
+            known = self._components(False)[1]
+            self._remember_pieces(known)
+        return known
+
+    def _known_pieces(self) -> int | None:
+        """The piece count if it was counted since the last cell or face change, else None."""
+        if self._pieces is not None and self._pieces[0] == self._connectivity_version:
+            return self._pieces[1]
+        return None
+
+    def _remember_pieces(self, count: int) -> None:
+        self._pieces = (self._connectivity_version, int(count))
+
+    def _pieces_after(self, previous: int | None, removed, added) -> int:
+        """The piece count after a batch edit that replaced the cells ``removed`` by the cells ``added``
+        (indices before any compaction), ``previous`` the count before it (None: unknown).
+
+        Local test first, O(edit): the removed cells fall into clusters (joined through the faces they
+        shared); each cluster's kept neighbours (live old cells across its faces) must be joined to one
+        another through the new cells and the kept cells near them (a union-find over the new cells and
+        up to :data:`_PIECE_RINGS` rings of cells round them), and every new cell to a kept neighbour.
+        Then every path the removed cells carried between kept cells runs through the new ones, every new
+        cell hangs on a piece, and an edit that replaces cells never joins pieces: the count is
+        ``previous``. Otherwise (a cut through the whole mesh, a plug drilled free: the edit may have
+        severed something), or for a batch of more than 1/64 of the cells, all the cells are counted.
+        """
+        removed = np.asarray(removed, dtype=np.int64).ravel()
+        added = np.asarray(added, dtype=np.int64).ravel()
+        cells, faces = self._stores["cell"], self._stores["face"]
+        big = max(1024, cells.count // 64)
+        if previous is None or len(added) == 0 or len(removed) == 0 or len(added) + len(removed) > big:
+            return self._component_count()
+        face_cells, cell_faces, alive = faces["cells"], cells["faces"], cells["alive"]
+        first_new = int(added.min())
+        # the removed cells' clusters, and their kept neighbours (the old live cells across their faces)
+        rf = cell_faces[removed]  # (R, 4) their faces (kept in the dead slots)
+        order = np.argsort(rf.ravel(), kind="stable")
+        fs = rf.ravel()[order]
+        same = np.flatnonzero(fs[1:] == fs[:-1])
+        cluster = _connected(len(removed), order[same] // 4, order[same + 1] // 4, np.ones(len(removed), bool))
+        across = face_cells[rf.ravel()]  # (4R, 2) their faces' cells now
+        owner = np.repeat(cluster, 4)[:, None].repeat(2, axis=1)
+        kept = (across >= 0) & (across < first_new)
+        kept &= alive[np.maximum(across, 0)]
+        kept_cells, kept_cluster = across[kept], owner[kept]
+        if len(kept_cells) == 0:
+            return self._component_count()
+        items = np.union1d(added, kept_cells)
+        for _ in range(_PIECE_RINGS):
+            pair = face_cells[np.unique(cell_faces[items].ravel())]
+            pair = pair[(pair >= 0).all(axis=1)]
+            pair = pair[alive[pair].all(axis=1)]
+            grown = np.union1d(items, pair.ravel())
+            if len(grown) > 8 * big:
+                break
+            ends = np.searchsorted(grown, pair)
+            labels = _connected(len(grown), ends[:, 0], ends[:, 1], np.ones(len(grown), dtype=bool))
+            kl = labels[np.searchsorted(grown, kept_cells)]
+            lo = np.full(cluster.max() + 1, np.iinfo(np.int32).max, dtype=np.int64)
+            hi = np.full(cluster.max() + 1, -1, dtype=np.int64)
+            np.minimum.at(lo, kept_cluster, kl)
+            np.maximum.at(hi, kept_cluster, kl)
+            joined = np.all((hi < 0) | (lo == hi))  # each cluster's kept neighbours in one local piece
+            hangs = np.isin(labels[np.searchsorted(grown, added)], kl).all()  # every new cell on one of them
+            if joined and hangs:
+                self._remember_pieces(previous)
+                return int(previous)
+            items = grown
+        return self._component_count()
+
+    def _cells_near(self, lower, upper) -> np.ndarray | None:
+        """The live cells whose rest boxes meet a box ``[lower[i], upper[i]]`` ((3,) or (B, 3), rest frame),
+        ascending (and maybe some newer cells that do not); None where the boxes hold too much of the mesh
+        for the search to pay (the caller then passes over every cell).
+
+        The cells there were when the search was first needed are kept in a uniform grid of their rest
+        boxes (built once, O(C), again when a cell's nodes or a rest position change, after a compaction,
+        or when the cells made since are an eighth as many); those made since (a cut's) are all taken.
+        """
+        cells = self._stores["cell"]
+        grid = self._rest_grid
+        if (grid is None or grid.clock != self._rest_clock or grid.cells > cells.count
+                or 8 * (cells.count - grid.cells) > grid.cells):  # fmt: skip
+            grid = self._rest_grid = _RestCellGrid(self._stores["node"]["rest"], cells["nodes"], self._rest_clock)
+        found = grid.query(lower, upper, cells.count // 4)
+        if found is None:
+            return None
+        found = np.concatenate([found, np.arange(grid.cells, cells.count, dtype=np.int64)])
+        return found[cells["alive"][found]]
 
     def _components(self, label: bool) -> tuple[np.ndarray, int]:
         st = self._stores
