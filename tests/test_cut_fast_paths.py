@@ -267,3 +267,33 @@ def test_piece_count_round_new_cells_is_the_whole_count(monkeypatch):
             r = cut(s, sweep, collect=bool(rng.random() < 0.3))
             labels = s.components()  # all cells, labels (not the remembered count)
             assert r.components == int(labels.max()) + 1, trial
+
+
+def _moved_cuts(mesh, near_search, monkeypatch):
+    from warpblob.cut import _cut as cut_module
+
+    monkeypatch.setattr(cut_module, "_NEAR_SEARCH", near_search)
+    s = TetStructure.from_tetmesh(mesh)
+    s.set_positions((mesh.nodes + 0.04 * np.sin(3.0 * mesh.nodes[:, [1, 2, 0]])).astype(np.float32))
+    blade = np.array([[0.1, 0.52, 1.1], [0.6, 0.55, 1.1]])
+    for sweep in (SweepSurface.from_blade(blade, blade - (0, 0, 0.7)),
+                  SweepSurface.from_blade(blade + (0.35, 0, 0), blade + (0.35, 0.0, -0.5))):  # fmt: skip
+        cut(s, sweep, collect=False)
+    return s
+
+
+def test_local_search_in_the_current_frame_cuts_the_same(monkeypatch):
+    """Nodes moved off their rest positions, two strokes cut where the nodes are: with the search of the
+    cells near the sweep (the rest grid's boxes grown by how far the nodes moved) every array is as with
+    the passes over everything, and the search was used."""
+    mesh = box_tetmesh((0, 0, 0), (1, 1, 1), (16, 16, 16))
+    found = []
+    real = TetStructure._cells_near
+    monkeypatch.setattr(TetStructure, "_cells_near", lambda self, lo, hi: found.append(real(self, lo, hi)) or found[-1])
+    local = _moved_cuts(mesh, 0, monkeypatch)
+    assert any(f is not None for f in found)
+    whole = _moved_cuts(mesh, 1 << 40, monkeypatch)
+    for kind, store in local._stores.items():
+        for name in store.arrays:
+            np.testing.assert_array_equal(store[name], whole._stores[kind][name], err_msg=f"{kind}.{name}")
+    assert local.cell_count > mesh.tet_count

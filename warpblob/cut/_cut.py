@@ -284,13 +284,15 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     if sticky is not None and sticky.size and (sticky.min() < 0 or sticky.max() >= N):
         raise CutError(f"cut: cut_nodes must be node indices in [0, {N}), got {int(sticky.min())}.."
                        f"{int(sticky.max())}; the structure is unchanged")  # fmt: skip
-    # in the rest frame a sweep meets only the cells near it: the edges of the cells whose rest boxes meet
-    # a triangle's (the structure's grid of rest boxes), and later the cells whose boxes hold a hit's end,
-    # instead of passes over every edge and cell (the same hits and cells: an edge's box lies in its
-    # cells', a node in its cells')
-    near = None
-    if configuration == "rest":  # the triangles' boxes as the kernels pad them
-        near = _near_cells(structure, *[b.numpy() for b in boxes], cell_alive_np)
+    # a sweep meets only the cells near it: the edges of the cells whose boxes meet a triangle's (the
+    # structure's grid of rest boxes, grown by how far the nodes moved), and later the cells whose boxes
+    # hold a hit's end, instead of passes over every edge and cell (the same hits and cells: an edge's box
+    # lies in its cells', a node in its cells')
+    reach = np.zeros(3, np.float32)
+    if configuration == "current" and len(structure.edge_nodes) >= _NEAR_SEARCH:
+        rest_np = np.asarray(structure.node_rest)
+        reach = np.array([np.abs(frame[:, i] - rest_np[:, i]).max() if N else 0.0 for i in range(3)], np.float32)
+    near = _near_cells(structure, *[b.numpy() for b in boxes], cell_alive_np, reach)  # (triangle boxes as padded)
     if near is not None:
         mark = np.zeros(E, dtype=bool)  # (marks, not a sort)
         mark[np.asarray(structure.cell_edges)[near].ravel()] = True
@@ -356,7 +358,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         at_hit[sticky] = 1
     if near is not None:  # the cells whose boxes hold one of those nodes
         at = np.flatnonzero(at_hit)
-        near = _near_cells(structure, frame[at], frame[at], cell_alive_np)
+        near = _near_cells(structure, frame[at], frame[at], cell_alive_np, reach)
     if near is not None:
         candidates = near[at_hit[cell_nodes_np[near]].any(axis=1)].astype(np.int32)
     else:
@@ -471,13 +473,14 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
 _NEAR_SEARCH = 1 << 15
 
 
-def _near_cells(structure, lower, upper, cell_alive) -> np.ndarray | None:
-    """The live (selected) cells whose rest boxes meet a box ``[lower[i], upper[i]]`` ((B, 3) each),
-    ascending, or None where a pass over every edge and cell is as cheap (a small mesh, boxes over much of
-    it)."""
-    if len(structure.edge_nodes) < _NEAR_SEARCH:
+def _near_cells(structure, lower, upper, cell_alive, reach) -> np.ndarray | None:
+    """The live (selected) cells whose rest boxes meet a box ``[lower[i] - reach, upper[i] + reach]``
+    ((B, 3) each; ``reach`` (3,) the nodes' largest distance from rest, per axis: a cell's current box lies
+    in its rest box grown by it), ascending, or None where a pass over every edge and cell is as cheap (a
+    small mesh, boxes over much of it)."""
+    if len(structure.edge_nodes) < _NEAR_SEARCH or not np.all(np.isfinite(reach)):
         return None
-    near = structure._cells_near(lower, upper)
+    near = structure._cells_near(np.asarray(lower) - reach, np.asarray(upper) + reach)
     return None if near is None else near[cell_alive[near] != 0]
 
 

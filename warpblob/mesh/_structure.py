@@ -468,6 +468,37 @@ def rest_boxes_kernel(rest: wp.array(dtype=wp.vec3), cell_nodes: wp.array(dtype=
     upper[c] = hi
 
 
+@wp.kernel(enable_backward=False)
+def bucket_keys_kernel(lower: wp.array(dtype=wp.vec3), origin: wp.vec3, spacing: float, dims: wp.vec3i,
+                       offset: int, keys: wp.array(dtype=wp.int32)):  # fmt: skip
+    """Per cell: the bucket (x fastest) of its box's lower corner in the grid at ``origin``."""
+    c = wp.tid() + offset
+    d = (lower[c] - origin) / spacing
+    x = wp.clamp(int(wp.floor(d[0])), 0, dims[0] - 1)
+    y = wp.clamp(int(wp.floor(d[1])), 0, dims[1] - 1)
+    z = wp.clamp(int(wp.floor(d[2])), 0, dims[2] - 1)
+    keys[c] = (z * dims[1] + y) * dims[0] + x
+
+
+@wp.kernel(enable_backward=False)
+def counting_sort_kernel(keys: wp.array(dtype=wp.int32), start: wp.array(dtype=wp.int32),
+                         order: wp.array(dtype=wp.int32)):  # fmt: skip
+    """One thread: the items in the order of their keys (stable), and each key's run ``start[k]..start[k+1]``
+    (``start`` has one more slot than there are keys; it arrives zeroed)."""
+    n = keys.shape[0]
+    for i in range(n):
+        start[keys[i] + 1] += 1
+    for k in range(1, start.shape[0]):
+        start[k] += start[k - 1]
+    for i in range(n):  # each key's next free place: start[k] itself, moved on, then moved back
+        k = keys[i]
+        order[start[k]] = i
+        start[k] += 1
+    for k in range(start.shape[0] - 1, 0, -1):
+        start[k] = start[k - 1]
+    start[0] = 0
+
+
 @wp.func
 def _triple_key(a: int, b: int, c: int, n: wp.int64) -> wp.int64:
     """Order-free key of three node ids below ``n`` (``n**3 < 2**63``): the sorted triple in base ``n``."""
@@ -796,11 +827,19 @@ class _RestCellGrid:
             self.order, self.start = np.zeros(0, np.int64), np.zeros(2, np.int64)
             return
         self.spacing = max(float((self.upper - self.lower).max()), 1e-12)
-        self.origin = self.lower.min(axis=0).astype(np.float64)
-        self.dims = np.floor((self.upper.max(axis=0) - self.origin) / self.spacing).astype(np.int64) + 1
-        keys = self._key(self._bucket(self.lower))
-        self.order = np.argsort(keys, kind="stable")
-        self.start = np.searchsorted(keys[self.order], np.arange(int(np.prod(self.dims)) + 1))
+        # (per column: numpy's reductions along the short axis of an (n, 3) array are several times slower)
+        self.origin = np.array([self.lower[:, i].min() for i in range(3)], dtype=np.float64)
+        top = np.array([self.upper[:, i].max() for i in range(3)], dtype=np.float64)
+        self.dims = np.floor((top - self.origin) / self.spacing).astype(np.int64) + 1
+        # (the grid has about as many buckets as cells at most: a bucket's side is the largest cell's)
+        keys = wp.empty(self.cells, dtype=wp.int32, device=cpu)
+        launch(bucket_keys_kernel, self.cells,
+               [wp.array(self.lower, dtype=wp.vec3, device=cpu, copy=False), wp.vec3(*self.origin.tolist()),
+                float(self.spacing), wp.vec3i(*self.dims.tolist())], [keys], cpu, min_chunk=_CHEAP)  # fmt: skip
+        start = wp.zeros(int(np.prod(self.dims)) + 1, dtype=wp.int32, device=cpu)
+        order = wp.empty(self.cells, dtype=wp.int32, device=cpu)
+        wp.launch(counting_sort_kernel, dim=1, inputs=[keys, start, order], device=cpu)
+        self.order, self.start = order.numpy().astype(np.int64), start.numpy().astype(np.int64)
 
     def _bucket(self, points: np.ndarray) -> np.ndarray:
         b = np.floor((np.asarray(points, np.float64) - self.origin) / self.spacing).astype(np.int64)
@@ -822,7 +861,7 @@ class _RestCellGrid:
         lo = self._bucket(lower - self.spacing)  # a box meeting the query has its corner's bucket here ...
         n = self._bucket(upper) - lo + 1  # ... up to the query's upper corner's
         count = n.prod(axis=1)
-        if int(count.sum()) > most:
+        if int(count.sum()) * self.cells > most * (len(self.start) - 1):  # about that many cells
             return None
         box = np.repeat(np.arange(len(lo)), count)  # every (box, bucket) pair
         k = np.arange(len(box)) - np.repeat(np.cumsum(count) - count, count)
@@ -1193,6 +1232,10 @@ class TetStructure:
         )
         s._rebuild(dev, threads)
         s._edges_used = True  # the edges are those of the cells
+        # what a cut needs of the whole mesh, once: its pieces, and the grid of the cells' rest boxes in which
+        # it finds the cells near its sweep (a few percent of the build)
+        s._rest_grid = _RestCellGrid(s._stores["node"]["rest"], s._stores["cell"]["nodes"], s._rest_clock)
+        s._remember_pieces(s._components(False)[1])
         s.stats = {"seconds": time.perf_counter() - start, "device": str(dev)}
         return s
 
