@@ -141,6 +141,11 @@ def launch(
     # compile (or load from the cache) here, once: the first launch of every
     # thread would otherwise compile the same module concurrently, n times over
     wp.load_module(kernel.module, device=device)
-    done, _ = concurrent.futures.wait(submit(work, n))
+    # the calling thread takes pieces too (n - 1 pool threads beside it): one hand-off fewer per launch
+    futures = submit(work, n - 1)
+    try:
+        work()
+    finally:
+        done, _ = concurrent.futures.wait(futures)
     for f in done:
         f.result()
