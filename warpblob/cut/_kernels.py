@@ -6,7 +6,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..mesh._structure import _GOLDEN_WP, vec6i
-from ..mesh._structure import _find_root as _root
+from ..mesh._structure import _join
 from ..mesh._tetmesh import TET_EDGES_WP, TET_FACES_WP
 from ..sim._elements import DEGENERATE_VOLUME
 
@@ -517,12 +517,7 @@ def pair_faces_kernel(
                             a = face_elem[j][m]
                             b = face_elem[i][m]
                             if a >= 0 and b >= 0:
-                                ra = _root(parent, a)
-                                rb = _root(parent, b)
-                                if ra < rb:
-                                    parent[rb] = ra
-                                elif rb < ra:
-                                    parent[ra] = rb
+                                _join(parent, a, b)
                 else:
                     s = (s + 1) & mask
 

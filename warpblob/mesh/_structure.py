@@ -345,21 +345,6 @@ def _find_root(parent: wp.array(dtype=wp.int32), i: int) -> int:
     return r
 
 
-@wp.kernel(enable_backward=False)
-def union_find_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=wp.int32), count: int,
-                      parent: wp.array(dtype=wp.int32)):  # fmt: skip
-    """Join every pair (one thread, in order); then every item's root is the lowest item of its set."""
-    for i in range(count):
-        ra = _find_root(parent, a[i])
-        rb = _find_root(parent, b[i])
-        if ra < rb:
-            parent[rb] = ra
-        elif rb < ra:
-            parent[ra] = rb
-    for i in range(parent.shape[0]):  # flatten: each item straight to its root (roots are lower, so done first)
-        parent[i] = parent[parent[i]]
-
-
 @wp.func
 def _join(parent: wp.array(dtype=wp.int32), a: int, b: int):
     """Union by lower root (path halving): a set's root stays its lowest item."""
@@ -370,6 +355,16 @@ def _join(parent: wp.array(dtype=wp.int32), a: int, b: int):
             parent[rb] = ra
         elif rb < ra:
             parent[ra] = rb
+
+
+@wp.kernel(enable_backward=False)
+def union_find_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=wp.int32), count: int,
+                      parent: wp.array(dtype=wp.int32)):  # fmt: skip
+    """Join every pair (one thread, in order); then every item's root is the lowest item of its set."""
+    for i in range(count):
+        _join(parent, a[i], b[i])
+    for i in range(parent.shape[0]):  # flatten: each item straight to its root (roots are lower, so done first)
+        parent[i] = parent[parent[i]]
 
 
 @wp.kernel(enable_backward=False)
