@@ -2,8 +2,11 @@
 
 One call of :func:`cut`:
 
-1. **intersection** (kernel, one thread per edge): every live edge at its
-   current position against the sweep triangles found by a ``wp.Bvh``
+1. **intersection** (kernel, one thread per edge): the edges of the cells
+   near the sweep (found in the structure's grid of rest boxes, grown by how
+   far the nodes moved; every live edge where that would be most of the
+   mesh) at their current positions against the sweep triangles found by a
+   ``wp.Bvh``
    (a sweep of a few triangles, a plane or one stroke step, tests each
    triangle's box in turn: the same candidates without the tree),
    Moller-Trumbore; an edge keeps its first hit (lowest triangle, the
@@ -35,7 +38,9 @@ One call of :func:`cut`:
 4. **topology**: one batch edit of the :class:`~warpblob.mesh.TetStructure`
    (:meth:`~warpblob.mesh.TetStructure.replace_cells`: deferred removal,
    faces and edges found or made in vectorized passes), then
-5. **gc**: :meth:`~warpblob.mesh.TetStructure.collect_garbage` (optional).
+5. **gc**: the pieces (counted round the new cells where they show that
+   nothing was severed, else over every cell), and
+   :meth:`~warpblob.mesh.TetStructure.collect_garbage` (optional).
 
 Everything is validated before the structure changes: a cut that raises
 leaves it as it was.
