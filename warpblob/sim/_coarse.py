@@ -66,6 +66,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
+from ..mesh._structure import _unique_inverse
 from . import _kernels as k
 
 __all__ = ["CoarseSpace", "aggregate", "factor"]
@@ -204,8 +205,7 @@ class CoarseSpace:
         slot = start[multi, None, None] + group[multi, :, None] * u[multi, None, None] + group[multi, None, :]
         pair_slot[multi] = slot.reshape(-1, 16)
         slot_code[slot.ravel()] = (corner[multi, :, None] * G + corner[multi, None, :]).ravel()
-        pairs, pair_of_slot = np.unique(slot_code, return_inverse=True)
-        pair_of_slot = pair_of_slot.ravel()
+        pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's, by a packed value sort)
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
         pair_offsets[1:] = np.cumsum(np.bincount(pair_of_slot, minlength=len(pairs)))
 
@@ -216,9 +216,11 @@ class CoarseSpace:
         self.aggregate_offsets, self.aggregate_nodes = array(offsets), array(order.astype(np.int32))
         self.pair_slot = array(pair_slot.ravel())
         self.pair_offsets = array(pair_offsets)
-        self.pair_slots = array(np.argsort(pair_of_slot, kind="stable").astype(np.int32))
+        # (a stable sort of narrow keys: numpy's radix sort where they fit 16 bits)
+        narrow = pair_of_slot.astype(np.uint16) if len(pairs) <= 1 << 16 else pair_of_slot
+        self.pair_slots = array(np.argsort(narrow, kind="stable").astype(np.int32))
         self.pair_aggregates = array(np.stack([pairs // G, pairs % G], axis=1).astype(np.int32), wp.vec2i)
-        self.slots = wp.zeros(len(slot_code), dtype=wp.spatial_matrix, device=dev)
+        self.slots = wp.empty(len(slot_code), dtype=wp.spatial_matrix, device=dev)  # (zeroed by each refresh)
         self.node_mode = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.reference = wp.zeros(N, dtype=wp.vec3, device=dev)
         self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
