@@ -297,3 +297,18 @@ def test_local_search_in_the_current_frame_cuts_the_same(monkeypatch):
         for name in store.arrays:
             np.testing.assert_array_equal(store[name], whole._stores[kind][name], err_msg=f"{kind}.{name}")
     assert local.cell_count > mesh.tet_count
+
+
+def test_piece_count_is_remembered_until_the_cells_change():
+    """The count is known after a build, kept by a compaction, forgotten by any cell edit (counted anew
+    then), and always equal to the count of a union-find over every cell."""
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (4, 4, 4)))
+    assert s._known_pieces() == 1
+    cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.1, 0), 3.0), collect=False)
+    assert s._known_pieces() == 2
+    s.collect_garbage()
+    assert s._known_pieces() == 2 == int(s.components().max()) + 1
+    c = int(np.flatnonzero(np.asarray(s.cell_alive))[0])
+    s.remove_cell(c)
+    assert s._known_pieces() is None
+    assert s._component_count() == int(s.components().max()) + 1

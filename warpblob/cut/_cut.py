@@ -468,7 +468,6 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.components = structure._pieces_after(pieces_before, plan["remove"], added)
     if collect:
         result.remap = structure.collect_garbage()
-        structure._remember_pieces(result.components)  # (a compaction renumbers, it joins and parts nothing)
     result.seconds["gc"] = time.perf_counter() - t4
     structure.stats["last_cut"] = result.summary()
     return result

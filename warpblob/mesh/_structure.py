@@ -2227,6 +2227,7 @@ class TetStructure:
         st = self._stores
         cells, faces, edges, nodes = st["cell"], st["face"], st["edge"], st["node"]
         live_cells = cells["alive"]
+        pieces = self._known_pieces()  # (a compaction renumbers; it joins and parts nothing)
 
         used = np.zeros(faces.count, dtype=bool)
         used[cells["faces"][live_cells].ravel()] = True
@@ -2290,6 +2291,8 @@ class TetStructure:
         self._edges_used = True  # the edges left are those of live cells
         for kind in KINDS:
             self._emit(kind, "compact", st[kind].count)
+        if pieces is not None:
+            self._remember_pieces(pieces)
         return maps
 
     def _purge(self, kind: str, mask: np.ndarray) -> None:
