@@ -123,3 +123,61 @@ def test_simulation_scalpel_cuts_while_stepping_and_records(tmp_path):
         sim.add_tool(blade, path)
     with pytest.raises(wb.CutError, match="mode"):
         sim.add_tool(blade, path, cut=True, mode="sometimes")
+
+
+def _cut_simulation():
+    """A stepped simulation of a box (moved off rest, a heavier material in one half), cut by a stroke."""
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
+    material = (box.nodes[box.tets].mean(axis=1)[:, 0] > 0.5).astype(np.int32)
+    s = TetStructure.from_tetmesh(wb.TetMesh(box.nodes, box.tets, material=material))
+    sim = wb.Simulation(s, young={0: 1e5, 1: 4e5}, poisson=0.35, density=1000.0, fixed=box.nodes[:, 0] == 0.0)
+    sim.step(3)
+    s.set_positions(sim.positions)
+    a = np.array([[0.1, 0.23, 0.7], [0.8, 0.26, 0.7]])
+    r = cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.45)), collect=False)
+    sim.apply_cut(r)
+    return sim, r
+
+
+def test_element_pass_after_a_cut_is_the_full_pass():
+    """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
+    array equals a full pass at the same positions, bit for bit."""
+    from warpblob.sim._solver import ElementState
+
+    sim, r = _cut_simulation()
+    assert r.tets_added > 0
+    e = sim.elements
+    full = ElementState(e.tet_count, e.node_count, e.device)
+    full.compute(e, sim._x[sim._cur], sim.threads)
+    for name in ("rotated", "corner_force", "corner_block", "energy", "volume", "node_force", "node_block"):
+        np.testing.assert_array_equal(getattr(sim._state, name).numpy(), getattr(full, name).numpy(), err_msg=name)
+
+
+def test_coarse_slots_are_the_reference_layout():
+    """The coarse space's per-tet slots (kernels) against a numpy construction of the layout: per tet u^2
+    slots for its u distinct corner aggregates in order of first appearance, dead tets none, every slot
+    naming its aggregate pair."""
+    sim, _ = _cut_simulation()
+    c, e = sim._solver.coarse, sim.elements
+    agg = c.node_aggregate.numpy().astype(np.int64)
+    G = c.aggregate_count
+    tets = e.tets_host.astype(np.int64)
+    corner = agg[tets]
+    live = e.alive_host & (corner >= 0).all(axis=1)
+    rep = np.argmax(corner[:, :, None] == corner[:, None, :], axis=2)
+    new = rep == np.arange(4)
+    group = np.take_along_axis(np.cumsum(new, axis=1) - 1, rep, axis=1)
+    u = np.where(live, new.sum(axis=1), 0)
+    start = np.concatenate([[0], np.cumsum(u * u)])
+    slot = np.where(live[:, None, None], start[:-1, None, None] + group[:, :, None] * u[:, None, None]
+                    + group[:, None, :], 0)  # fmt: skip
+    np.testing.assert_array_equal(c.pair_slot.numpy().reshape(-1, 4, 4), slot)
+    assert c.slots.shape[0] == start[-1]
+    # each slot's pair: from the grouping by pair (pair_offsets / pair_slots / pair_aggregates)
+    pair_of_slot = np.repeat(np.arange(len(c.pair_aggregates)), np.diff(c.pair_offsets.numpy()))
+    code = np.empty(start[-1], dtype=np.int64)
+    code[c.pair_slots.numpy()] = pair_of_slot
+    pa = c.pair_aggregates.numpy().astype(np.int64)
+    t, a, b = np.nonzero(live[:, None, None] & np.ones((1, 4, 4), bool))
+    np.testing.assert_array_equal(pa[code[slot[t, a, b]]], np.stack([corner[t, a], corner[t, b]], axis=1))
+    assert (~live).sum() > 0 and (u > 1).sum() > 0 and G > 1

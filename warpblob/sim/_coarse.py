@@ -188,23 +188,20 @@ class CoarseSpace:
         offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
         # per tet, one slot per pair of the distinct aggregates of its corners (u of them: u^2 slots, mostly 1),
         # numbered by the aggregates' order of first appearance among the corners; slots grouped by pair
-        tets = e.tets_host.astype(np.int64)
-        live = e.alive_host & (node_aggregate[tets] >= 0).all(axis=1)
-        corner = node_aggregate[tets].astype(np.int64)
-        rep = np.argmax(corner[:, :, None] == corner[:, None, :], axis=2)  # first corner of the same aggregate
-        new = rep == np.arange(4)
-        group = np.take_along_axis(np.cumsum(new, axis=1) - 1, rep, axis=1)
-        u = np.where(live, new.sum(axis=1), 0)
-        start = np.concatenate([[0], np.cumsum(u * u)])
-        # most tets lie in one aggregate (u = 1: one slot for all 16 corner pairs); only the others expand
-        pair_slot = np.repeat(np.where(live, start[:-1], 0).astype(np.int32), 16).reshape(T, 16)
-        slot_code = np.zeros(int(start[-1]), dtype=np.int64)
-        single = np.flatnonzero(live & (u == 1))
-        slot_code[start[single]] = corner[single, 0] * G + corner[single, 0]
-        multi = np.flatnonzero(live & (u > 1))
-        slot = start[multi, None, None] + group[multi, :, None] * u[multi, None, None] + group[multi, None, :]
-        pair_slot[multi] = slot.reshape(-1, 16)
-        slot_code[slot.ravel()] = (corner[multi, :, None] * G + corner[multi, None, :]).ravel()
+        # (kernels: a tet's groups are its corners' aggregates numbered by first appearance)
+        tets_wp, alive_wp = e.tets, wp.array(e.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
+        aggregate_wp = wp.array(node_aggregate, dtype=wp.int32, device=dev)
+        squares = wp.empty(T, dtype=wp.int32, device=dev)
+        launch(k.tet_aggregate_counts_kernel, T, [tets_wp, alive_wp, aggregate_wp], [squares], dev, threads,
+               min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
+        start = np.zeros(T + 1, dtype=np.int64)
+        np.cumsum(squares.numpy(), out=start[1:])
+        pair_slot = np.empty(16 * T, dtype=np.int32)
+        slot_code = np.empty(int(start[-1]), dtype=np.int64)
+        launch(k.tet_pair_slots_kernel, T, [tets_wp, alive_wp, aggregate_wp, wp.array(start, dtype=wp.int64,
+               device=dev), int(G)], [wp.array(pair_slot, dtype=wp.int32, device=dev, copy=False),
+               wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
+               min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
         pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's, by a packed value sort)
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
         pair_offsets[1:] = np.cumsum(np.bincount(pair_of_slot, minlength=len(pairs)))

@@ -110,22 +110,22 @@ def prepare_elements_kernel(
         volume[t] = det / 6.0
 
 
-@wp.kernel(enable_backward=False)
-def rotate_elements_kernel(
+@wp.func
+def rotate_element(
+    t: int,
     x: wp.array(dtype=wp.vec3),
     tets: wp.array(dtype=wp.vec4i),
     dm_inv: wp.array(dtype=wp.mat33),
     volume: wp.array(dtype=float),
     mu: wp.array(dtype=float),
     lam: wp.array(dtype=float),
-    offset: int,
     rotated: wp.array(dtype=wp.mat33),
     corner_force: wp.array(dtype=wp.vec3),
     corner_block: wp.array(dtype=wp.vec4),
     energy: wp.array(dtype=float),
     current_volume: wp.array(dtype=float),
 ):
-    """The one element pass of a step at positions ``x``.
+    """The one element pass of a step at positions ``x``, for tet ``t``.
 
     Per tet: the rotated gradients ``Dm^-1 R^T`` (rows ``R g_a``, which is all
     the product with ``K'`` needs of ``R``: :func:`multiply_elements_kernel`),
@@ -134,7 +134,6 @@ def rotate_elements_kernel(
     with ``K'_aa = c I + q q^T`` (``c = V mu |g_a|^2``,
     ``q = sqrt(V (mu + lambda)) R g_a``).
     """
-    t = wp.tid() + offset
     V = volume[t]
     if V == 0.0:
         rotated[t] = wp.mat33()
@@ -171,6 +170,31 @@ def rotate_elements_kernel(
     g0 = -wp.vec3(B[0, 0] + B[1, 0] + B[2, 0], B[0, 1] + B[1, 1] + B[2, 1], B[0, 2] + B[1, 2] + B[2, 2])
     q0 = s * (R * g0)
     corner_block[4 * t] = wp.vec4(q0[0], q0[1], q0[2], V * m * wp.dot(g0, g0))
+
+
+@wp.kernel(enable_backward=False)
+def rotate_elements_kernel(
+    ids: wp.array(dtype=wp.int32),
+    x: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
+    dm_inv: wp.array(dtype=wp.mat33),
+    volume: wp.array(dtype=float),
+    mu: wp.array(dtype=float),
+    lam: wp.array(dtype=float),
+    offset: int,
+    rotated: wp.array(dtype=wp.mat33),
+    corner_force: wp.array(dtype=wp.vec3),
+    corner_block: wp.array(dtype=wp.vec4),
+    energy: wp.array(dtype=float),
+    current_volume: wp.array(dtype=float),
+):
+    """:func:`rotate_element` of every tet, or of the tets ``ids`` lists where it is not empty (a topology
+    change's)."""
+    i = wp.tid() + offset
+    t = i
+    if ids.shape[0] > 0:
+        t = ids[i]
+    rotate_element(t, x, tets, dm_inv, volume, mu, lam, rotated, corner_force, corner_block, energy, current_volume)
 
 
 @wp.kernel(enable_backward=False)
@@ -1191,3 +1215,58 @@ def check_step_kernel(
     partials[3, blk] = push
     partials[4, blk] = constraint
     partials[5, blk] = contact
+
+
+@wp.func
+def _corner_groups(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
+                   node_aggregate: wp.array(dtype=wp.int32), t: int) -> wp.vec4i:  # fmt: skip
+    """Per corner of tet ``t``: the number of its aggregate among the tet's distinct aggregates in order of
+    first appearance; ``-1`` everywhere for a dead tet or one with a corner in no aggregate."""
+    c = tets[t]
+    g = wp.vec4i(-1, -1, -1, -1)
+    if alive[t] == wp.uint8(0):
+        return g
+    a = wp.vec4i(node_aggregate[c[0]], node_aggregate[c[1]], node_aggregate[c[2]], node_aggregate[c[3]])
+    if a[0] < 0 or a[1] < 0 or a[2] < 0 or a[3] < 0:
+        return g
+    n = int(0)
+    for i in range(4):
+        for j in range(i + 1):
+            if g[i] < 0:
+                if j == i:
+                    g[i] = n
+                    n += 1
+                elif a[j] == a[i]:
+                    g[i] = g[j]
+    return g
+
+
+@wp.kernel(enable_backward=False)
+def tet_aggregate_counts_kernel(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
+                                node_aggregate: wp.array(dtype=wp.int32), offset: int,
+                                squares: wp.array(dtype=wp.int32)):  # fmt: skip
+    """Per tet: ``u^2``, ``u`` the distinct aggregates of its corners (0 for a dead tet or one outside)."""
+    t = wp.tid() + offset
+    g = _corner_groups(tets, alive, node_aggregate, t)
+    u = wp.max(wp.max(g[0], g[1]), wp.max(g[2], g[3])) + 1
+    squares[t] = u * u
+
+
+@wp.kernel(enable_backward=False)
+def tet_pair_slots_kernel(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
+                          node_aggregate: wp.array(dtype=wp.int32), start: wp.array(dtype=wp.int64),
+                          aggregates: int, offset: int, pair_slot: wp.array(dtype=wp.int32),
+                          slot_code: wp.array(dtype=wp.int64)):  # fmt: skip
+    """Per tet, its 16 corner pairs' slots ``start[t] + g_a u + g_b`` (0 for a dead tet or one outside) and
+    each slot's code ``aggregate_a * G + aggregate_b``."""
+    t = wp.tid() + offset
+    g = _corner_groups(tets, alive, node_aggregate, t)
+    u = wp.max(wp.max(g[0], g[1]), wp.max(g[2], g[3])) + 1
+    c = tets[t]
+    for a in range(4):
+        for b in range(4):
+            slot = int(0)
+            if u > 0:
+                slot = int(start[t]) + g[a] * u + g[b]
+                slot_code[slot] = wp.int64(node_aggregate[c[a]]) * wp.int64(aggregates) + wp.int64(node_aggregate[c[b]])
+            pair_slot[16 * t + 4 * a + b] = slot

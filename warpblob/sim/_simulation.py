@@ -307,6 +307,7 @@ class Simulation:
 
     def _allocate(self, positions: np.ndarray, velocities: np.ndarray) -> None:
         dev, e = self.device, self.elements
+        self._carry = None  # (state, tets, changed tets): what the next _refresh may carry over (rebuild)
         N, T = e.node_count, e.tet_count
         # double buffers: a step writes the other one, so a failed step leaves the state as it was
         x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=dev)
@@ -488,9 +489,11 @@ class Simulation:
         return free
 
     def _refresh(self) -> None:
-        """Recompute the element pass at the current positions (after the caller changed the state)."""
+        """Recompute the element pass at the current positions (after the caller changed the state); after a
+        topology change (:meth:`rebuild`) only for the changed tets, the others' carried over."""
         x, v = self._x[self._cur], self._v[self._cur]
-        self._state.compute(self.elements, x, self.threads)
+        carry, self._carry = self._carry, None
+        self._state.compute(self.elements, x, self.threads, carry=carry)
         _, sums = self._reduce(x, x, v, self._state)
         self._budget = sums["kinetic"] + sums["elastic"]
 
@@ -1000,12 +1003,15 @@ class Simulation:
         if self._structure is not None:
             added = np.asarray(self._structure.node_position, dtype=np.float32)[old_n : e.node_count]
         pad = lambda a, fill: np.concatenate([a, fill])  # noqa: E731
+        # the element pass of the tets not rebuilt carries over (same positions, same element data)
+        carry = None if tet_ids is None else (self._state, old_t, np.asarray(tet_ids, dtype=np.int64))
         vnew = np.zeros((grow, 3)) if new_velocities is None else np.asarray(new_velocities, np.float64)
         fnew = np.zeros(grow, dtype=bool) if new_fixed is None else np.asarray(new_fixed, dtype=bool)
         if vnew.shape != (grow, 3) or fnew.shape != (grow,):
             raise SimulationError(f"rebuild: {grow} nodes were added; new_velocities must be ({grow}, 3) and "
                                   f"new_fixed ({grow},), got {vnew.shape} and {fnew.shape}")  # fmt: skip
         self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64))
+        self._carry = carry
         self._target.assign(pad(target, added))
         self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))
         self._fixed_mask = pad(mask, fnew)

@@ -168,13 +168,32 @@ class ElementState:
         self.corner_block = wp.zeros(4 * T, dtype=wp.vec4, device=device)
         self.node_force = wp.zeros(N, dtype=wp.vec3, device=device)
         self.node_block = wp.zeros(N, dtype=wp.mat33, device=device)
+        self._every = wp.zeros(0, dtype=wp.int32, device=device)  # (no list: every tet)
 
-    def compute(self, elements, x: wp.array, threads=None) -> None:
-        """Rotations, energies, volumes and node forces of ``elements`` at positions ``x``."""
+    def compute(self, elements, x: wp.array, threads=None, *, carry=None) -> None:
+        """Rotations, energies, volumes and node forces of ``elements`` at positions ``x``.
+
+        ``carry``: ``(state, count, ids)``, an earlier state at the same positions of the first ``count``
+        tets, of which only ``ids`` (int, any order) have changed since: the others' values are copied from
+        it (the same values: the pass is per tet) and only ``ids`` and the tets past ``count`` recomputed
+        (a topology change's rebuild, O(changed) instead of O(T)); the node forces are gathered anew.
+        """
         e, dev = elements, elements.device
-        split_launch(k.rotate_elements_kernel, e.tet_count, [x, e.tets, e.dm_inv, e.volume, e.mu, e.lam],
-                     [self.rotated, self.corner_force, self.corner_block, self.energy, self.volume], dev, threads,
-                     TET_GRAIN)  # fmt: skip
+        out = [self.rotated, self.corner_force, self.corner_block, self.energy, self.volume]
+        inputs = [x, e.tets, e.dm_inv, e.volume, e.mu, e.lam]
+        if carry is None:
+            split_launch(k.rotate_elements_kernel, e.tet_count, [self._every, *inputs], out, dev, threads, TET_GRAIN)
+        else:
+            old, count, ids = carry
+            count = min(int(count), e.tet_count)
+            for a, b, per in zip(out, (old.rotated, old.corner_force, old.corner_block, old.energy, old.volume),
+                                 (1, 4, 4, 1, 1)):  # fmt: skip
+                wp.copy(a, b, count=per * count)
+            ids = np.asarray(ids, dtype=np.int64).ravel()
+            ids = np.union1d(ids[(ids >= 0) & (ids < count)], np.arange(count, e.tet_count)).astype(np.int32)
+            if ids.size:
+                split_launch(k.rotate_elements_kernel, len(ids), [wp.array(ids, dtype=wp.int32, device=dev),
+                             *inputs], out, dev, threads, TET_GRAIN)  # fmt: skip
         split_launch(k.gather_elements_kernel, e.node_count,
                      [e.node_offsets, e.node_corners, self.corner_force, self.corner_block],
                      [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
