@@ -312,3 +312,29 @@ def test_piece_count_is_remembered_until_the_cells_change():
     s.remove_cell(c)
     assert s._known_pieces() is None
     assert s._component_count() == int(s.components().max()) + 1
+
+
+def test_rest_grid_of_far_apart_pieces_stays_small(monkeypatch):
+    """Two boxes a thousand units apart: the grid's buckets stay within four per cell (its side grows), a
+    box query still holds every cell it meets, and a stroke cuts the same with and without the search."""
+    from warpblob.cut import _cut as cut_module
+    from warpblob.mesh import TetMesh
+
+    a = box_tetmesh((0, 0, 0), (1, 1, 1), (6, 6, 6))
+    b = box_tetmesh((1000, 1000, 1000), (1001, 1001, 1001), (6, 6, 6))
+    mesh = TetMesh(np.concatenate([a.nodes, b.nodes]), np.concatenate([a.tets, b.tets + a.node_count]))
+    results = []
+    for near_search in (0, 1 << 40):
+        monkeypatch.setattr(cut_module, "_NEAR_SEARCH", near_search)
+        s = TetStructure.from_tetmesh(mesh)
+        grid = s._rest_grid
+        assert np.prod(grid.dims) <= 4 * grid.cells + 64
+        got = s._cells_near((1000.2, 1000.2, 1000.2), (1000.3, 1000.3, 1000.3))
+        assert got is None or np.isin(np.arange(a.tet_count, 2 * a.tet_count)[
+            (mesh.nodes[b.tets + a.node_count].min(axis=1) <= 1000.3).all(axis=1)
+            & (mesh.nodes[b.tets + a.node_count].max(axis=1) >= 1000.2).all(axis=1)], got).all()  # fmt: skip
+        blade = np.array([[0.1, 0.52, 1.1], [0.8, 0.55, 1.1]])
+        r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, 0.6)), collect=False)
+        results.append((r.tets_added, np.asarray(s.cell_nodes).copy()))
+    assert results[0][0] == results[1][0] > 0
+    np.testing.assert_array_equal(results[0][1], results[1][1])

@@ -821,11 +821,18 @@ class _RestCellGrid:
             self.origin, self.spacing, self.dims = np.zeros(3), 1.0, np.ones(3, np.int64)
             self.order, self.start = np.zeros(0, np.int64), np.zeros(2, np.int64)
             return
-        self.spacing = max(float((self.upper - self.lower).max()), 1e-12)
         # (per column: numpy's reductions along the short axis of an (n, 3) array are several times slower)
         self.origin = np.array([self.lower[:, i].min() for i in range(3)], dtype=np.float64)
         top = np.array([self.upper[:, i].max() for i in range(3)], dtype=np.float64)
-        self.dims = np.floor((top - self.origin) / self.spacing).astype(np.int64) + 1
+        span = np.maximum(top - self.origin, 0.0)
+        # a bucket's side: the largest box side, or coarser where the cells are spread thin over their box
+        # (clusters far apart): at most about four buckets per cell
+        side = max(float((self.upper - self.lower).max()), 1e-12)
+        side = max(side, float(np.prod(np.maximum(span, side)) / (4.0 * self.cells)) ** (1.0 / 3.0))
+        while np.prod(np.floor(span / side) + 1) > 4 * self.cells + 64:
+            side *= 1.25
+        self.spacing = side
+        self.dims = np.floor(span / self.spacing).astype(np.int64) + 1
         # (the grid has about as many buckets as cells at most: a bucket's side is the largest cell's)
         keys = wp.empty(self.cells, dtype=wp.int32, device=cpu)
         launch(bucket_keys_kernel, self.cells,
