@@ -449,6 +449,32 @@ def live_roots_kernel(parent: wp.array(dtype=wp.int32), cell_alive: wp.array(dty
 
 
 @wp.kernel(enable_backward=False)
+def mark_used_kernel(refs: wp.array2d(dtype=wp.int32), alive: wp.array(dtype=wp.uint8), offset: int,
+                     used: wp.array(dtype=wp.uint8)):  # fmt: skip
+    """1 in ``used`` at every entity a live row of ``refs`` names (threads that mark one write the same)."""
+    i = wp.tid() + offset
+    if alive[i] != wp.uint8(0):
+        for j in range(refs.shape[1]):
+            r = refs[i, j]
+            if r >= 0:
+                used[r] = wp.uint8(1)
+
+
+@wp.kernel(enable_backward=False)
+def remap_rows_kernel(refs: wp.array2d(dtype=wp.int32), rows: wp.array(dtype=wp.int32),
+                      index_map: wp.array(dtype=wp.int32), offset: int, out: wp.array2d(dtype=wp.int32)):  # fmt: skip
+    """Row ``i`` of ``out``: row ``rows[i]`` of ``refs`` through ``index_map`` (-1 stays -1)."""
+    i = wp.tid() + offset
+    src = rows[i]
+    for j in range(refs.shape[1]):
+        r = refs[src, j]
+        v = int(-1)
+        if r >= 0:
+            v = index_map[r]
+        out[i, j] = v
+
+
+@wp.kernel(enable_backward=False)
 def rest_boxes_kernel(rest: wp.array(dtype=wp.vec3), cell_nodes: wp.array(dtype=wp.vec4i), offset: int,
                       lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3)):  # fmt: skip
     """Per cell: the box of its four nodes' rest positions."""
@@ -799,6 +825,26 @@ def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
     if not len(index_map):
         return np.full(refs.shape, -1, dtype=np.int32)
     return np.where(refs >= 0, index_map[np.maximum(refs, 0)], -1).astype(np.int32)
+
+
+def _cpu(a: np.ndarray, dtype=wp.int32) -> wp.array:
+    """A host array's own memory as a Warp CPU array (no copy)."""
+    return wp.array(np.ascontiguousarray(a), dtype=dtype, device="cpu", copy=False)
+
+
+def _mark_used(used: np.ndarray, refs: np.ndarray, alive: np.ndarray) -> None:
+    """``used[refs[alive]] = True`` (one kernel; ``used`` a bool array, written in place)."""
+    launch(mark_used_kernel, len(refs), [_cpu(refs), _cpu(alive.view(np.uint8), wp.uint8)],
+           [_cpu(used.view(np.uint8), wp.uint8)], "cpu", min_chunk=_CHEAP)  # fmt: skip
+
+
+def _remap_rows(index_map: np.ndarray, refs: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """:func:`_remap` of ``refs[rows]`` ((n, k) int32 refs, one kernel)."""
+    out = np.empty((len(rows), refs.shape[1]), dtype=np.int32)
+    if len(rows):
+        launch(remap_rows_kernel, len(rows), [_cpu(refs), _cpu(rows), _cpu(index_map.astype(np.int32, copy=False))],
+               [_cpu(out)], "cpu", min_chunk=_CHEAP)  # fmt: skip
+    return out
 
 
 class _RestCellGrid:
@@ -2237,18 +2283,18 @@ class TetStructure:
         pieces = self._known_pieces()  # (a compaction renumbers; it joins and parts nothing)
 
         used = np.zeros(faces.count, dtype=bool)
-        used[cells["faces"][live_cells].ravel()] = True
+        _mark_used(used, cells["faces"], live_cells)
         self._purge("face", faces["alive"] & ~used)
 
         used = np.zeros(edges.count, dtype=bool)
-        used[faces["edges"][faces["alive"]].ravel()] = True
-        used[cells["edges"][live_cells].ravel()] = True
+        _mark_used(used, faces["edges"], faces["alive"])
+        _mark_used(used, cells["edges"], live_cells)
         self._purge("edge", edges["alive"] & ~used)
 
         used = np.zeros(nodes.count, dtype=bool)
-        used[edges["nodes"][edges["alive"]].ravel()] = True
-        used[faces["nodes"][faces["alive"]].ravel()] = True
-        used[cells["nodes"][live_cells].ravel()] = True
+        _mark_used(used, edges["nodes"], edges["alive"])
+        _mark_used(used, faces["nodes"], faces["alive"])
+        _mark_used(used, cells["nodes"], live_cells)
         self._purge("node", nodes["alive"] & ~used)
 
         keep = {kind: st[kind]["alive"].copy() for kind in KINDS}
@@ -2257,15 +2303,16 @@ class TetStructure:
             maps[kind] = np.full(len(alive), -1, dtype=np.int32)
             maps[kind][alive] = np.arange(np.count_nonzero(alive), dtype=np.int32)
         n, e, f, c = (keep[kind] for kind in KINDS)
+        rows = {kind: np.flatnonzero(keep[kind]).astype(np.int32) for kind in ("edge", "face", "cell")}
         nodes.load(
             rest=nodes["rest"][n], position=nodes["position"][n], origin=nodes["origin"][n],
             alive=np.ones(n.sum(), dtype=bool),
         )  # fmt: skip
-        edges.load(nodes=_remap(maps["node"], edges["nodes"][e]), alive=np.ones(e.sum(), dtype=bool))
+        edges.load(nodes=_remap_rows(maps["node"], edges["nodes"], rows["edge"]), alive=np.ones(e.sum(), dtype=bool))
         faces.load(
-            nodes=_remap(maps["node"], faces["nodes"][f]),
-            edges=_remap(maps["edge"], faces["edges"][f]),
-            cells=_remap(maps["cell"], faces["cells"][f]),
+            nodes=_remap_rows(maps["node"], faces["nodes"], rows["face"]),
+            edges=_remap_rows(maps["edge"], faces["edges"], rows["face"]),
+            cells=_remap_rows(maps["cell"], faces["cells"], rows["face"]),
             alive=np.ones(f.sum(), dtype=bool),
         )
         # parent records of progressive cuts: those with a live child stay, renumbered, their nodes remapped
@@ -2282,9 +2329,9 @@ class TetStructure:
             centre=_remap(maps["node"], pr["centre"][used]), alive=np.ones(int(used.sum()), dtype=bool),
         )  # fmt: skip
         cells.load(
-            nodes=_remap(maps["node"], cells["nodes"][c]),
-            faces=_remap(maps["face"], cells["faces"][c]),
-            edges=_remap(maps["edge"], cells["edges"][c]),
+            nodes=_remap_rows(maps["node"], cells["nodes"], rows["cell"]),
+            faces=_remap_rows(maps["face"], cells["faces"], rows["cell"]),
+            edges=_remap_rows(maps["edge"], cells["edges"], rows["cell"]),
             material=cells["material"][c],
             parent=_remap(pmap, child_parent),
             alive=np.ones(c.sum(), dtype=bool),
