@@ -356,7 +356,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     dropped = np.zeros(len(hits), dtype=bool)
     set_t = np.zeros(0, dtype=np.int64)
     # the cells that can get a code in any round: those at an end of a hit edge or at a given cut node (cut
-    # nodes and the ends of cut edges are such nodes); one pass over the cells, then each round codes only these
+    # nodes and the ends of cut edges are such nodes), found once (among the cells near those nodes, or by a
+    # pass over every cell); each round codes only these
     at_hit = np.zeros(N, dtype=np.uint8)
     at_hit[ends.ravel()] = 1
     if sticky is not None:
@@ -473,7 +474,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     return result
 
 
-#: edges from which a rest-frame cut searches the cells near its sweep (below, passes over all cost less)
+#: edges from which a cut searches the cells near its sweep (below, passes over every edge and cell cost less)
 _NEAR_SEARCH = 1 << 15
 
 

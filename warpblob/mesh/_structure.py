@@ -31,6 +31,16 @@ flagged dead and listed as pending, indices stay valid until
 :meth:`TetStructure.collect_garbage` purges unreferenced faces, edges and
 nodes, compacts every kind and remaps every link. Every insert, update and
 removal fires an event to the observers (:meth:`TetStructure.subscribe`).
+
+What a cut needs of the whole mesh is kept so that a small cut costs what it
+changes: a uniform grid of the cells' rest boxes (bucket side the largest box
+side, cells sorted by the bucket of their lower corner: a counting sort in a
+kernel), in which a cut finds the cells near its sweep; and the number of
+connected pieces, counted by a union-find over the faces (one per range of
+cells side by side, then the faces between ranges) and, after a batch edit,
+settled round the new cells when they show that nothing was severed
+(:meth:`TetStructure._pieces_after`). Both are kept until an edit makes them
+stale (a cell's nodes or a rest position, any cell or face).
 """
 
 from __future__ import annotations
