@@ -1016,7 +1016,10 @@ class Simulation:
         self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))
         self._fixed_mask = pad(mask, fnew)
         self._anchor_mask = pad(self._anchor_mask, np.zeros(grow, dtype=bool))
-        self._update_flags()
+        try:
+            self._update_flags()  # (its _refresh takes the carried state)
+        finally:
+            self._carry = None  # never to a later refresh, whose positions may differ
         self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count
         if self._embedding is not None:
             self._embedding = embed(e, self._embedding.mesh, threads=self.threads)
