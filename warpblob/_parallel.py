@@ -35,6 +35,10 @@ _MIN_CHUNK = 1024
 _PIECES = 8
 
 
+#: the machine's cores, read once (``os.cpu_count`` costs microseconds a call, and every launch asks)
+_CORES = max(1, os.cpu_count() or 1)
+
+
 def thread_count() -> int:
     """Threads used by CPU launches: ``set_thread_count``, else ``WARPBLOB_THREADS``, else all cores."""
     if _threads is not None:
@@ -48,7 +52,7 @@ def thread_count() -> int:
         if n < 1:
             raise WarpblobError(f"WARPBLOB_THREADS must be a positive integer, got {env!r}")
         return n
-    return max(1, os.cpu_count() or 1)
+    return _CORES
 
 
 def check_threads(threads, name: str = "threads") -> int | None:
