@@ -372,7 +372,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         launch(k.cells_at_nodes_kernel, C, [arrays["cell_nodes"], arrays["cell_alive"],
                _shared(at_hit, wp.uint8, dev)], [flags_c], dev, threads, min_chunk=_CHEAP)  # fmt: skip
         candidates = _compact(flags_c, dev, threads)
-    candidates_wp = wp.array(candidates, dtype=wp.int32, device=dev)
+    candidates_wp = _shared(candidates, wp.int32, dev)
     code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
@@ -532,10 +532,10 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
         return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0), np.zeros(0, bool)
     ta = _table_arrays(tables, dev)
     inputs = [
-        wp.array(np.ascontiguousarray(units["corners"], dtype=np.int32), dtype=wp.vec4i, device=dev),
-        wp.array(np.ascontiguousarray(units["edge_code"], dtype=np.int32), dtype=wp.int32, device=dev),
-        wp.array(np.ascontiguousarray(units["node_code"], dtype=np.int32), dtype=wp.int32, device=dev),
-        wp.array(np.ascontiguousarray(units["t"], dtype=np.float64).ravel(), dtype=wp.float64, device=dev),
+        _shared(np.ascontiguousarray(units["corners"], dtype=np.int32), wp.vec4i, dev),
+        _shared(np.ascontiguousarray(units["edge_code"], dtype=np.int32), wp.int32, dev),
+        _shared(np.ascontiguousarray(units["node_code"], dtype=np.int32), wp.int32, dev),
+        _shared(np.ascontiguousarray(units["t"], dtype=np.float64).ravel(), wp.float64, dev),
         _shared(np.asarray(rest), wp.vec3, dev),
         ta["entry"], ta["count"], ta["refs"], ta["kind"], ta["rank"], _KIND_NAMES.index("Xp"),
     ]  # fmt: skip
@@ -737,7 +737,7 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
 
     # split points of this stroke: copy 0 joined to the edge's first node, copy 1 to its second
     cn32 = np.ascontiguousarray(cn, dtype=np.int32)
-    cn_wp = wp.array(cn32, dtype=wp.vec4i, device=dev)
+    cn_wp = _shared(cn32, wp.vec4i, dev)
     split_of = units["old_split"]  # (n, 6, 2) per unit and local edge, the copy joined to its local first / second end
     if len(cut_edges):
         a, b, t = edge_nodes[cut_edges, 0], edge_nodes[cut_edges, 1], split_t[cut_edges]
@@ -749,7 +749,7 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
         launch(k.unit_splits_kernel, n,
                [cn_wp, wp.array(np.ascontiguousarray(units["new_edges"], dtype=np.int32).ravel(), dtype=wp.int32,
                                 device=dev),
-                wp.array(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), dtype=wp.int32, device=dev),
+                _shared(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), wp.int32, dev),
                 _shared(edge_nodes, wp.vec2i, dev), _shared(pos, wp.int32, dev), int(ids0[0]), len(cut_edges)],
                [_out(out, wp.int32, dev)], dev, threads, min_chunk=4096)  # fmt: skip
         split_of = _back(out, dev).astype(np.int64).reshape(n, 6, 2)
@@ -764,10 +764,10 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     ids = np.empty(4 * total, dtype=np.int32)
     if n:
         launch(k.emit_subtets_kernel, n,
-               [wp.array(entry.astype(np.int32), dtype=wp.int32, device=dev),
-                wp.array(np.ascontiguousarray(perm, dtype=np.int32), dtype=wp.int32, device=dev), cn_wp,
-                wp.array(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), dtype=wp.int32, device=dev),
-                wp.array(first_row, dtype=wp.int32, device=dev), ta["count"], ta["refs"]],
+               [_shared(entry.astype(np.int32), wp.int32, dev),
+                _shared(np.ascontiguousarray(perm, dtype=np.int32), wp.int32, dev), cn_wp,
+                _shared(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), wp.int32, dev),
+                _shared(first_row, wp.int32, dev), ta["count"], ta["refs"]],
                [_out(unit_of, wp.int32, dev), _out(refs, wp.int32, dev), _out(ids, wp.int32, dev)], dev, threads,
                min_chunk=4096)  # fmt: skip
         unit_of, refs, ids = _back(unit_of, dev), _back(refs, dev).reshape(-1, 4), _back(ids, dev).reshape(-1, 4)
@@ -823,8 +823,8 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     if one.size:
         flags = np.empty(len(one), dtype=np.uint8)
         launch(k.unchanged_kernel, len(one),
-               [wp.array(one, dtype=wp.int32, device=dev), wp.array(first_row, dtype=wp.int32, device=dev),
-                wp.array(ids.astype(np.int32).ravel(), dtype=wp.int32, device=dev), cn_wp],
+               [_shared(one, wp.int32, dev), _shared(first_row, wp.int32, dev),
+                _shared(ids.astype(np.int32).ravel(), wp.int32, dev), cn_wp],
                [_out(flags, wp.uint8, dev)], dev, threads, min_chunk=8192)  # fmt: skip
         same[one] = _back(flags, dev) != 0
     replace = ~same
@@ -911,16 +911,16 @@ def _cut_node_copies(structure, cn, node_rows, unit_of, refs, ids, new: _NewNode
     outs = [_out(row_elem, wp.int32, cpu), _out(face_key, wp.int64, cpu), _out(face_elem, wp.vec3i, cpu),
             _out(face_flag, wp.int32, cpu)]  # fmt: skip
     launch(k.subtet_faces_kernel, R,
-           [wp.array(node_rows.astype(np.int32), dtype=wp.int32, device=cpu),
-            wp.array(unit_of, dtype=wp.int32, device=cpu), wp.array(refs.ravel(), dtype=wp.int32, device=cpu),
-            wp.array(ids.astype(np.int32).ravel(), dtype=wp.int32, device=cpu),
-            wp.array(np.ascontiguousarray(cn, dtype=np.int32), dtype=wp.vec4i, device=cpu), wp.int64(key_base)],
+           [_shared(node_rows.astype(np.int32), wp.int32, cpu),
+            _shared(unit_of, wp.int32, cpu), _shared(refs.ravel(), wp.int32, cpu),
+            _shared(ids.astype(np.int32).ravel(), wp.int32, cpu),
+            _shared(np.ascontiguousarray(cn, dtype=np.int32), wp.vec4i, cpu), wp.int64(key_base)],
            outs, cpu, threads, min_chunk=2048)  # fmt: skip
     row_elem, face_key, face_elem, face_flag = (_back(a, cpu) for a in (outs[0], outs[1], outs[2], outs[3]))
     face_elem = face_elem.reshape(-1, 3)
     # pair equal faces, join copies off the sweep (one thread)
     size = 1 << max(4, int(8 * R - 1).bit_length())
-    parent = wp.array(np.arange(n * 8, dtype=np.int32), dtype=wp.int32, device=cpu)
+    parent = _shared(np.arange(n * 8, dtype=np.int32), wp.int32, cpu)
     sweep_pairs = wp.empty(4 * R, dtype=wp.vec2i, device=cpu)
     sweep_count = wp.zeros(1, dtype=wp.int32, device=cpu)
     wp.launch(k.pair_faces_kernel, dim=1, device=cpu,
@@ -947,8 +947,8 @@ def _cut_node_copies(structure, cn, node_rows, unit_of, refs, ids, new: _NewNode
         a, b = face_elem[f1][both], face_elem[f2][both]
     # the remaining joins, and every item straight to its root (the lowest item of its set)
     wp.launch(union_find_kernel, dim=1, device=cpu,
-              inputs=[wp.array(np.ascontiguousarray(a, dtype=np.int32), dtype=wp.int32, device=cpu),
-                      wp.array(np.ascontiguousarray(b, dtype=np.int32), dtype=wp.int32, device=cpu), len(a),
+              inputs=[_shared(np.ascontiguousarray(a, dtype=np.int32), wp.int32, cpu),
+                      _shared(np.ascontiguousarray(b, dtype=np.int32), wp.int32, cpu), len(a),
                       parent])  # fmt: skip
     roots = parent.numpy()
     node_ref = row_elem >= 0

@@ -725,7 +725,8 @@ def _insert_edges(edge_nodes: wp.array, ids: np.ndarray, bits: int, keys: wp.arr
     if len(ids):
         # Warp's CPU atomics are plain loads and stores: this launch must not be range-split across threads
         wp.launch(insert_edge_ids_kernel, dim=len(ids), device=device,
-                  inputs=[edge_nodes, wp.array(ids, dtype=wp.int32, device=device), bits, keys, values])  # fmt: skip
+                  inputs=[edge_nodes, wp.array(ids, dtype=wp.int32, device=device,
+                                               copy=wp.get_device(device).is_cuda), bits, keys, values])  # fmt: skip
 
 
 def _face_edge_slots() -> np.ndarray:
@@ -1933,7 +1934,7 @@ class TetStructure:
         if key_base:
             old_keys = np.empty(len(old_faces), dtype=np.int64)
             launch(triple_keys_kernel, len(old_faces),
-                   [wp.array(np.ascontiguousarray(faces["nodes"][old_faces]), dtype=wp.vec3i, device=cpu),
+                   [_cpu(faces["nodes"][old_faces], wp.vec3i),
                     wp.int64(key_base)], [wp.array(old_keys, dtype=wp.int64, device=cpu, copy=False)], cpu,
                    min_chunk=_CHEAP)  # fmt: skip
             keys = np.concatenate([old_keys, new_keys])
@@ -1966,7 +1967,7 @@ class TetStructure:
             mk_uniq, first, mk_inv = edge_sort() if callable(edge_sort) else edge_sort.result()
             pairs = np.empty((len(first), 2), dtype=np.int32)
             launch(edge_pairs_kernel, len(first),
-                   [new_wp, wp.array(missing[first].astype(np.int32), dtype=wp.int32, device=cpu)],
+                   [new_wp, _cpu(missing[first].astype(np.int32))],
                    [wp.array(pairs, dtype=wp.vec2i, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
             edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs)
             found[missing] = edge_ids[mk_inv]
