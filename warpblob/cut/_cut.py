@@ -72,7 +72,7 @@ from .._device import resolve_device
 from .._errors import CutError
 from .._parallel import launch
 from .._stages import compact
-from ..mesh._structure import NODE_ORIGINS, TetStructure, _unique_first, union_find_kernel, vec6i
+from ..mesh._structure import NODE_ORIGINS, TetStructure, _shared, _unique_first, union_find_kernel, vec6i
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
 from ._sweep import SweepSurface
@@ -180,12 +180,6 @@ def _planes(sweep: SweepSurface, device) -> tuple[wp.array, wp.array]:
     normals = np.cross(e1, e2).astype(np.float32)
     slack = (1e-4 * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)).astype(np.float32)
     return wp.array(normals, dtype=wp.vec3, device=device), wp.array(slack, dtype=float, device=device)
-
-
-def _shared(values: np.ndarray, dtype, device) -> wp.array:
-    """``values`` as a Warp array: the same memory on the CPU (no copy of the big structure arrays), a copy on CUDA."""
-    values = np.ascontiguousarray(values)
-    return wp.array(values, dtype=dtype, device=device, copy=device.is_cuda)
 
 
 def _compact(flags: wp.array, device, threads) -> np.ndarray:

@@ -838,23 +838,24 @@ def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
     return np.where(refs >= 0, index_map[np.maximum(refs, 0)], -1).astype(np.int32)
 
 
-def _cpu(a: np.ndarray, dtype=wp.int32) -> wp.array:
-    """A host array's own memory as a Warp CPU array (no copy)."""
-    return wp.array(np.ascontiguousarray(a), dtype=dtype, device="cpu", copy=False)
+def _shared(values: np.ndarray, dtype=wp.int32, device="cpu") -> wp.array:
+    """``values`` as a Warp array: its own memory on the CPU (no copy), a copy on CUDA."""
+    values = np.ascontiguousarray(values)
+    return wp.array(values, dtype=dtype, device=device, copy=wp.get_device(device).is_cuda)
 
 
 def _mark_used(used: np.ndarray, refs: np.ndarray, alive: np.ndarray) -> None:
     """``used[refs[alive]] = True`` (one kernel; ``used`` a bool array, written in place)."""
-    launch(mark_used_kernel, len(refs), [_cpu(refs), _cpu(alive.view(np.uint8), wp.uint8)],
-           [_cpu(used.view(np.uint8), wp.uint8)], "cpu", min_chunk=_CHEAP)  # fmt: skip
+    launch(mark_used_kernel, len(refs), [_shared(refs), _shared(alive.view(np.uint8), wp.uint8)],
+           [_shared(used.view(np.uint8), wp.uint8)], "cpu", min_chunk=_CHEAP)  # fmt: skip
 
 
 def _remap_rows(index_map: np.ndarray, refs: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """:func:`_remap` of ``refs[rows]`` ((n, k) int32 refs, one kernel)."""
     out = np.empty((len(rows), refs.shape[1]), dtype=np.int32)
     if len(rows):
-        launch(remap_rows_kernel, len(rows), [_cpu(refs), _cpu(rows), _cpu(index_map.astype(np.int32, copy=False))],
-               [_cpu(out)], "cpu", min_chunk=_CHEAP)  # fmt: skip
+        launch(remap_rows_kernel, len(rows), [_shared(refs), _shared(rows), _shared(index_map.astype(np.int32, copy=False))],
+               [_shared(out)], "cpu", min_chunk=_CHEAP)  # fmt: skip
     return out
 
 
@@ -1934,7 +1935,7 @@ class TetStructure:
         if key_base:
             old_keys = np.empty(len(old_faces), dtype=np.int64)
             launch(triple_keys_kernel, len(old_faces),
-                   [_cpu(faces["nodes"][old_faces], wp.vec3i),
+                   [_shared(faces["nodes"][old_faces], wp.vec3i),
                     wp.int64(key_base)], [wp.array(old_keys, dtype=wp.int64, device=cpu, copy=False)], cpu,
                    min_chunk=_CHEAP)  # fmt: skip
             keys = np.concatenate([old_keys, new_keys])
@@ -1967,7 +1968,7 @@ class TetStructure:
             mk_uniq, first, mk_inv = edge_sort() if callable(edge_sort) else edge_sort.result()
             pairs = np.empty((len(first), 2), dtype=np.int32)
             launch(edge_pairs_kernel, len(first),
-                   [new_wp, _cpu(missing[first].astype(np.int32))],
+                   [new_wp, _shared(missing[first].astype(np.int32))],
                    [wp.array(pairs, dtype=wp.vec2i, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
             edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs)
             found[missing] = edge_ids[mk_inv]

@@ -110,22 +110,24 @@ def prepare_elements_kernel(
         volume[t] = det / 6.0
 
 
-@wp.func
-def rotate_element(
-    t: int,
+@wp.kernel(enable_backward=False)
+def rotate_elements_kernel(
+    ids: wp.array(dtype=wp.int32),
     x: wp.array(dtype=wp.vec3),
     tets: wp.array(dtype=wp.vec4i),
     dm_inv: wp.array(dtype=wp.mat33),
     volume: wp.array(dtype=float),
     mu: wp.array(dtype=float),
     lam: wp.array(dtype=float),
+    offset: int,
     rotated: wp.array(dtype=wp.mat33),
     corner_force: wp.array(dtype=wp.vec3),
     corner_block: wp.array(dtype=wp.vec4),
     energy: wp.array(dtype=float),
     current_volume: wp.array(dtype=float),
 ):
-    """The one element pass of a step at positions ``x``, for tet ``t``.
+    """The one element pass of a step at positions ``x``: every tet, or the tets ``ids`` lists where it
+    is not empty (a topology change's).
 
     Per tet: the rotated gradients ``Dm^-1 R^T`` (rows ``R g_a``, which is all
     the product with ``K'`` needs of ``R``: :func:`multiply_elements_kernel`),
@@ -134,6 +136,9 @@ def rotate_element(
     with ``K'_aa = c I + q q^T`` (``c = V mu |g_a|^2``,
     ``q = sqrt(V (mu + lambda)) R g_a``).
     """
+    t = wp.tid() + offset
+    if ids.shape[0] > 0:
+        t = ids[t]
     V = volume[t]
     if V == 0.0:
         rotated[t] = wp.mat33()
@@ -170,31 +175,6 @@ def rotate_element(
     g0 = -wp.vec3(B[0, 0] + B[1, 0] + B[2, 0], B[0, 1] + B[1, 1] + B[2, 1], B[0, 2] + B[1, 2] + B[2, 2])
     q0 = s * (R * g0)
     corner_block[4 * t] = wp.vec4(q0[0], q0[1], q0[2], V * m * wp.dot(g0, g0))
-
-
-@wp.kernel(enable_backward=False)
-def rotate_elements_kernel(
-    ids: wp.array(dtype=wp.int32),
-    x: wp.array(dtype=wp.vec3),
-    tets: wp.array(dtype=wp.vec4i),
-    dm_inv: wp.array(dtype=wp.mat33),
-    volume: wp.array(dtype=float),
-    mu: wp.array(dtype=float),
-    lam: wp.array(dtype=float),
-    offset: int,
-    rotated: wp.array(dtype=wp.mat33),
-    corner_force: wp.array(dtype=wp.vec3),
-    corner_block: wp.array(dtype=wp.vec4),
-    energy: wp.array(dtype=float),
-    current_volume: wp.array(dtype=float),
-):
-    """:func:`rotate_element` of every tet, or of the tets ``ids`` lists where it is not empty (a topology
-    change's)."""
-    i = wp.tid() + offset
-    t = i
-    if ids.shape[0] > 0:
-        t = ids[i]
-    rotate_element(t, x, tets, dm_inv, volume, mu, lam, rotated, corner_force, corner_block, energy, current_volume)
 
 
 @wp.kernel(enable_backward=False)
