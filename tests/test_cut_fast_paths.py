@@ -269,6 +269,77 @@ def test_piece_count_round_new_cells_is_the_whole_count(monkeypatch):
             assert r.components == int(labels.max()) + 1, trial
 
 
+def _face_graph_labels(s):
+    """Component of every live cell by a graph library (faces joining two live cells), -1 for dead ones."""
+    fc = np.asarray(s._stores["face"]["cells"])
+    alive = np.asarray(s.cell_alive)
+    both = (fc >= 0).all(axis=1)
+    both[both] = alive[fc[both]].all(axis=1)
+    n = len(alive)
+    graph = coo_matrix((np.ones(both.sum()), (fc[both, 0], fc[both, 1])), shape=(n, n))
+    _, ref = connected_components(graph, directed=False)
+    return np.where(alive, ref, -1)
+
+
+def test_flood_counts_the_pieces_its_seeds_lie_in():
+    """The flood from labelled seed cells (each its own label) against a graph library: the number of
+    distinct components among the seeds, for seed sets in one, two and three of a mesh's pieces; a budget
+    below what the flood needs gives None, and the scratch marks are all reset after either."""
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (6, 6, 6)))
+    for origin, normal in (((0.5, 0.5, 0.5), (1, 0.2, 0.1)), ((0.3, 0.6, 0.4), (0.1, 1, 0.3))):
+        cut(s, SweepSurface.plane(origin, normal, 3.0), collect=False)
+    ref = _face_graph_labels(s)
+    assert len(np.unique(ref[ref >= 0])) == 4
+    rng = np.random.default_rng(5)
+    live = np.flatnonzero(ref >= 0)
+    for trial in range(20):
+        pieces = rng.choice(4, size=rng.integers(1, 4), replace=False)
+        pool = live[np.isin(ref[live], np.unique(ref[live])[pieces])]
+        seeds = np.unique(rng.choice(pool, size=min(len(pool), int(rng.integers(1, 40))), replace=False))
+        labels = np.arange(len(seeds), dtype=np.int32)
+        got = s._flood_pieces(seeds.astype(np.int32), labels, len(live) + 16)
+        assert got == len(np.unique(ref[seeds])), trial
+        assert np.all(s._flood_mark == -1)
+        if len(np.unique(ref[seeds])) > 1:  # the flood must pass one piece whole: too small a budget fails
+            assert s._flood_pieces(seeds.astype(np.int32), labels, len(seeds)) is None
+            assert np.all(s._flood_mark == -1)
+
+
+def test_cutting_off_corners_counts_by_the_flood(monkeypatch):
+    """Corners cut off one after another (each cut severs a small piece; the last one a corner of a piece
+    made by an earlier cut, so the count before it is above one): the count reported is a graph library's,
+    and it came from the flood, not from a count of every cell; with a flood budget too small for the
+    pieces the whole count is taken instead, with the same result."""
+    flood = TetStructure._flood_pieces
+    for floods in (True, False):
+        if not floods:  # the least budget: the seeds themselves
+            monkeypatch.setattr(TetStructure, "_flood_pieces", lambda self, seeds, labels, budget:
+                                flood(self, seeds, labels, len(seeds)))  # fmt: skip
+        s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (14, 14, 14)))
+        counted = []
+        real = TetStructure._components
+        monkeypatch.setattr(TetStructure, "_components", lambda self, label: counted.append(label) or real(self, label))
+        s._component_count()
+        counted.clear()
+        corners = [((0.12, 0.12, 0.12), (1, 1, 1)), ((0.88, 0.1, 0.1), (-1, 1, 1)), ((0.1, 0.9, 0.1), (1, -1, 1))]
+        for k, (origin, normal) in enumerate(corners):
+            r = cut(s, SweepSurface.plane(origin, normal, 0.6), collect=False)
+            ref = _face_graph_labels(s)
+            assert r.components == len(np.unique(ref[ref >= 0])) == k + 2
+        # the big piece of the first cut split in two by a plane across it, then a corner of one half cut off
+        r = cut(s, SweepSurface.plane((0.5, 0.5, 0.55), (0, 0, 1), 3.0), collect=False)
+        assert r.components == 5
+        r = cut(s, SweepSurface.plane((0.9, 0.9, 0.9), (1, 1, 1), 0.6), collect=False)
+        ref = _face_graph_labels(s)
+        assert r.components == len(np.unique(ref[ref >= 0])) == 6
+        full_counts = [c for c in counted if c is False]
+        if floods:  # only the plane across the whole mesh (a batch above 1/64 of the cells) counted every cell
+            assert len(full_counts) == 1
+        else:
+            assert len(full_counts) == 5
+        monkeypatch.setattr(TetStructure, "_components", real)
+
+
 def _moved_cuts(mesh, near_search, monkeypatch):
     from warpblob.cut import _cut as cut_module
 

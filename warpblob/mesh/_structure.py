@@ -90,8 +90,8 @@ _CHEAP = 16384
 _COMPONENT_RANGE = 65536
 #: missing edges from which a batch edit sorts them on a pool thread beside the faces' sort
 _SIDE_SORT = 1 << 16
-#: rings of cells round a batch edit's new cells in which they must be joined to keep the piece count
-_PIECE_RINGS = 4
+#: a flood after a batch edit may queue up to 1/_FLOOD_SHARE of the cells before every cell is counted
+_FLOOD_SHARE = 16
 
 
 # ---------------------------------------------------------------------------
@@ -375,6 +375,96 @@ def union_find_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=wp.int32), 
         _join(parent, a[i], b[i])
     for i in range(parent.shape[0]):  # flatten: each item straight to its root (roots are lower, so done first)
         parent[i] = parent[parent[i]]
+
+
+@wp.kernel(enable_backward=False)
+def flood_pieces_kernel(
+    face_cells: wp.array(dtype=wp.vec2i),
+    cell_faces: wp.array(dtype=wp.vec4i),
+    cell_alive: wp.array(dtype=wp.uint8),
+    seeds: wp.array(dtype=wp.int32),
+    seed_label: wp.array(dtype=wp.int32),
+    budget: int,
+    mark: wp.array(dtype=wp.int32),
+    queue: wp.array(dtype=wp.int32),
+    parent: wp.array(dtype=wp.int32),
+    pending: wp.array(dtype=wp.int32),
+    out: wp.array(dtype=wp.int32),
+):
+    """The pieces an edit touched, by a breadth-first flood from labelled seed cells (one thread).
+
+    Every seed (label ``seed_label[i]`` in ``[0, L)``, ``L = parent.shape[0]``) is queued; each cell taken
+    from the queue marks its unmarked live neighbours (across its faces) with its label's root and queues
+    them, and joins its label with a neighbour's of another root (union by lower root). A label with no
+    queued cell left has flooded its whole piece; the flood stops when at most one label still has queued
+    cells (that one's piece can meet no finished one), or fails when ``budget`` cells are queued. Writes
+    ``out = (failed, distinct roots among the labels, cells queued)``; ``mark`` (-1 outside the flood on
+    entry) holds a label at every queued cell, which the caller resets."""
+    labels = parent.shape[0]
+    for i in range(labels):
+        parent[i] = i
+        pending[i] = 0
+    tail = int(0)
+    for i in range(seeds.shape[0]):
+        mark[seeds[i]] = seed_label[i]
+        queue[tail] = seeds[i]
+        tail += 1
+        pending[seed_label[i]] += 1
+    active = int(0)
+    for i in range(labels):
+        if pending[i] > 0:
+            active += 1
+    head = int(0)
+    failed = int(0)
+    while head < tail and active > 1 and failed == 0:
+        c = queue[head]
+        head += 1
+        r = _find_root(parent, mark[c])
+        pending[r] -= 1
+        if pending[r] == 0:
+            active -= 1
+        for j in range(4):
+            fc = face_cells[cell_faces[c][j]]
+            o = fc[0]
+            if o == c:
+                o = fc[1]
+            if o >= 0:
+                if cell_alive[o] != wp.uint8(0):
+                    if mark[o] < 0:
+                        if tail < budget:
+                            mark[o] = r
+                            queue[tail] = o
+                            tail += 1
+                            pending[r] += 1
+                            if pending[r] == 1:
+                                active += 1
+                        else:
+                            failed = 1
+                    else:
+                        s = _find_root(parent, mark[o])
+                        if s != r:
+                            was = int(0)
+                            if pending[r] > 0:
+                                was += 1
+                            if pending[s] > 0:
+                                was += 1
+                            lo = wp.min(r, s)
+                            hi = wp.max(r, s)
+                            parent[hi] = lo
+                            pending[lo] = pending[r] + pending[s]
+                            pending[hi] = 0
+                            now = int(0)
+                            if pending[lo] > 0:
+                                now = 1
+                            active -= was - now
+                            r = lo
+    distinct = int(0)
+    for i in range(labels):
+        if _find_root(parent, i) == i:
+            distinct += 1
+    out[0] = failed
+    out[1] = distinct
+    out[2] = tail
 
 
 @wp.kernel(enable_backward=False)
@@ -1192,6 +1282,7 @@ class TetStructure:
         self.topology_version = 0
         # the piece count and the connectivity clock it was counted at (any cell or face event moves the clock)
         self._connectivity_version = 0
+        self._flood_mark = None  # (capacity,) int32 scratch of the pieces' flood, -1 between floods
         self._pieces: tuple[int, int] | None = None
         # the cells' rest boxes in a uniform grid (cutting's local search), and the clock it was built at
         # (a cell's nodes or a rest position changed, or a compaction, moves the clock)
@@ -2085,14 +2176,16 @@ class TetStructure:
         """The piece count after a batch edit that replaced the cells ``removed`` by the cells ``added``
         (indices before any compaction), ``previous`` the count before it (None: unknown).
 
-        Local test first, O(edit): the removed cells fall into clusters (joined through the faces they
-        shared); each cluster's kept neighbours (live old cells across its faces) must be joined to one
-        another through the new cells and the kept cells near them (a union-find over the new cells and
-        up to :data:`_PIECE_RINGS` rings of cells round them), and every new cell to a kept neighbour.
-        Then every path the removed cells carried between kept cells runs through the new ones, every new
-        cell hangs on a piece, and an edit that replaces cells never joins pieces: the count is
-        ``previous``. Otherwise (a cut through the whole mesh, a plug drilled free: the edit may have
-        severed something), or for a batch of more than 1/64 of the cells, all the cells are counted.
+        Local first, O(the edit and the pieces it cut off): the new cells and the kept neighbours of the
+        removed ones (the live old cells across their faces) are flooded outwards, each from its own
+        label, through the live cells (:func:`flood_pieces_kernel`); labels that meet join, and the
+        flood stops when at most one label can still grow. Every piece the edit left in the old piece
+        it touched holds one of these cells (a path from it to a removed cell passes a kept neighbour),
+        so the labels left are those pieces: the count is ``previous - 1`` plus their number, where the
+        edit touched one old piece (there was one piece, or the removed cells form one cluster joined
+        through the faces they shared). An edit never joins pieces. Otherwise (several clusters in
+        several pieces, a batch of more than 1/64 of the cells, or a flood that would pass
+        1/:data:`_FLOOD_SHARE` of the cells: a cut through the whole mesh) all the cells are counted.
         """
         removed = np.asarray(removed, dtype=np.int64).ravel()
         added = np.asarray(added, dtype=np.int64).ravel()
@@ -2101,42 +2194,51 @@ class TetStructure:
         if previous is None or len(added) == 0 or len(removed) == 0 or len(added) + len(removed) > big:
             return self._component_count()
         face_cells, cell_faces, alive = faces["cells"], cells["faces"], cells["alive"]
-        first_new = int(added.min())
-        # the removed cells' clusters, and their kept neighbours (the old live cells across their faces)
         rf = cell_faces[removed]  # (R, 4) their faces (kept in the dead slots)
-        order = np.argsort(rf.ravel(), kind="stable")
-        fs = rf.ravel()[order]
-        same = np.flatnonzero(fs[1:] == fs[:-1])
-        cluster = _connected(len(removed), order[same] // 4, order[same + 1] // 4, np.ones(len(removed), bool))
-        across = face_cells[rf.ravel()]  # (4R, 2) their faces' cells now
-        owner = np.repeat(cluster, 4)[:, None].repeat(2, axis=1)
-        kept = (across >= 0) & (across < first_new)
-        kept &= alive[np.maximum(across, 0)]
-        kept_cells, kept_cluster = across[kept], owner[kept]
-        if len(kept_cells) == 0:
+        if previous != 1:  # the removed cells' clusters (joined through the faces they shared): one?
+            order = np.argsort(rf.ravel(), kind="stable")
+            fs = rf.ravel()[order]
+            same = np.flatnonzero(fs[1:] == fs[:-1])
+            cluster = _connected(len(removed), order[same] // 4, order[same + 1] // 4, np.ones(len(removed), bool))
+            if int(cluster.max()) != 0:
+                return self._component_count()
+        across = face_cells[rf.ravel()].ravel()  # their faces' cells now
+        kept = (across >= 0) & (across < int(added.min()))
+        kept[kept] = alive[across[kept]]
+        seeds = np.union1d(added, across[kept]).astype(np.int32)
+        touched = self._flood_pieces(seeds, np.arange(len(seeds), dtype=np.int32),
+                                     max(len(seeds) + 1024, cells.count // _FLOOD_SHARE))  # fmt: skip
+        if touched is None:
             return self._component_count()
-        items = np.union1d(added, kept_cells)
-        for _ in range(_PIECE_RINGS):
-            pair = face_cells[np.unique(cell_faces[items].ravel())]
-            pair = pair[(pair >= 0).all(axis=1)]
-            pair = pair[alive[pair].all(axis=1)]
-            grown = np.union1d(items, pair.ravel())
-            if len(grown) > 8 * big:
-                break
-            ends = np.searchsorted(grown, pair)
-            labels = _connected(len(grown), ends[:, 0], ends[:, 1], np.ones(len(grown), dtype=bool))
-            kl = labels[np.searchsorted(grown, kept_cells)]
-            lo = np.full(cluster.max() + 1, np.iinfo(np.int32).max, dtype=np.int64)
-            hi = np.full(cluster.max() + 1, -1, dtype=np.int64)
-            np.minimum.at(lo, kept_cluster, kl)
-            np.maximum.at(hi, kept_cluster, kl)
-            joined = np.all((hi < 0) | (lo == hi))  # each cluster's kept neighbours in one local piece
-            hangs = np.isin(labels[np.searchsorted(grown, added)], kl).all()  # every new cell on one of them
-            if joined and hangs:
-                self._remember_pieces(previous)
-                return int(previous)
-            items = grown
-        return self._component_count()
+        count = int(previous) - 1 + touched
+        self._remember_pieces(count)
+        return count
+
+    def _flood_pieces(self, seeds: np.ndarray, labels: np.ndarray, budget: int) -> int | None:
+        """How many pieces the labelled ``seeds`` (live cells; labels dense in ``[0, L)``, each label's
+        cells joined) lie in, by :func:`flood_pieces_kernel`; None when the flood would queue more than
+        ``budget`` cells."""
+        cells, faces = self._stores["cell"], self._stores["face"]
+        cpu = wp.get_device("cpu")
+        if self._flood_mark is None or len(self._flood_mark) < cells.count:
+            self._flood_mark = np.full(len(cells.arrays["alive"]), -1, dtype=np.int32)
+        mark = self._flood_mark
+        budget = max(int(budget), len(seeds))
+        queue = np.empty(budget, dtype=np.int32)
+        count = int(labels.max()) + 1 if len(labels) else 0
+        out = np.zeros(3, dtype=np.int32)
+        wp.launch(flood_pieces_kernel, dim=1, device=cpu, inputs=[
+            wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False),
+            wp.array(cells["faces"], dtype=wp.vec4i, device=cpu, copy=False),
+            wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+            wp.array(np.ascontiguousarray(seeds, dtype=np.int32), dtype=wp.int32, device=cpu),
+            wp.array(np.ascontiguousarray(labels, dtype=np.int32), dtype=wp.int32, device=cpu), budget,
+            wp.array(mark, dtype=wp.int32, device=cpu, copy=False),
+            wp.array(queue, dtype=wp.int32, device=cpu, copy=False),
+            wp.empty(count, dtype=wp.int32, device=cpu), wp.empty(count, dtype=wp.int32, device=cpu),
+            wp.array(out, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
+        mark[queue[: out[2]]] = -1  # back to unmarked for the next flood
+        return None if out[0] else int(out[1])
 
     def _cells_near(self, lower, upper) -> np.ndarray | None:
         """The live cells whose rest boxes meet a box ``[lower[i], upper[i]]`` ((3,) or (B, 3), rest frame),
