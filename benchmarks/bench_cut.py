@@ -12,6 +12,10 @@ Cases:
 * ``plane``: ``SweepSurface.plane`` through (2.013, 2.007, 2.011) with normal
   (0.3, 0.2, 1.0), a square wider than the box: every tet it crosses is split,
   the mesh falls into two pieces;
+* ``corner``: ``SweepSurface.plane`` through (0.4, 0.4, 0.4) with normal
+  (1, 1, 1), cutting a corner off the box (a few tets to a few thousand:
+  the cost of a small cut, where a cut does work near its sweep and VTK's
+  clip still passes over every cell); the mesh falls into two pieces;
 * ``stroke``: one frame (1/60 s) of a scalpel moving at 10 cm/s through the
   middle of the box, heading 20 degrees from the x axis: its cutting edge, a
   2 cm segment leaning 15 degrees back from the vertical, from 0.5 cm above
@@ -29,7 +33,7 @@ call (``CutResult.seconds``). "split / ms": tets replaced by a split table
 entry (A, B, X, Y, C, D, E; not the intact ones re-linked at a cut node) per
 millisecond of the whole call.
 
-Peer, same mesh, same plane (``plane`` case): VTK's table-based clip,
+Peer, same mesh, same plane (``plane`` and ``corner`` cases): VTK's table-based clip,
 ``pyvista.UnstructuredGrid.clip(normal, origin, crinkle=False,
 return_clipped=True)``, both sides in one call. Its output is tets plus
 wedges and pyramids; ``.triangulate()`` of both sides makes it all tets and
@@ -81,6 +85,8 @@ from _common import Run, arguments, table, wall_time  # noqa: E402
 #: the box, model units (cm)
 SIDE = 4.0
 ORIGIN, NORMAL = (2.013, 2.007, 2.011), (0.3, 0.2, 1.0)
+#: the ``corner`` case's plane: a corner of the box cut off
+CORNER_ORIGIN, CORNER_NORMAL = (0.4, 0.4, 0.4), (1.0, 1.0, 1.0)
 #: blade speed (cm/s), frame time (s), cutting edge length (cm), how far above the top face it starts (cm)
 SPEED, FRAME, EDGE, ABOVE = 10.0, 1.0 / 60.0, 2.0, 0.5
 #: direction of travel from the x axis and lean of the edge back from the vertical (degrees): off the lattice
@@ -148,14 +154,14 @@ def vtk_grid(mesh: wb.TetMesh):
     return grid
 
 
-def run_vtk(mesh: wb.TetMesh, repeat: int) -> dict:
+def run_vtk(mesh: wb.TetMesh, repeat: int, origin=ORIGIN, normal=NORMAL) -> dict:
     grid = vtk_grid(mesh)
     clip_s, sides = wall_time(
-        lambda: grid.clip(normal=NORMAL, origin=ORIGIN, crinkle=False, return_clipped=True), repeat
+        lambda: grid.clip(normal=normal, origin=origin, crinkle=False, return_clipped=True), repeat
     )
     tri_s, tets = wall_time(lambda: [side.triangulate() for side in sides], repeat)
-    n = np.asarray(NORMAL) / np.linalg.norm(NORMAL)
-    d = (mesh.nodes.astype(np.float64) - ORIGIN) @ n
+    n = np.asarray(normal) / np.linalg.norm(normal)
+    d = (mesh.nodes.astype(np.float64) - origin) @ n
     dt = d[mesh.tets]
     crossed = (dt.min(axis=1) < 0) & (dt.max(axis=1) > 0)
     made = inverted = 0
@@ -250,14 +256,15 @@ def main(argv=None):
                     f"(default {FULL['skull']}: 66K skull tets)")  # fmt: skip
     args = arguments(ap, FULL, QUICK, argv)
     bench = Run("cut", "cutting benchmark: ms per cut, warm, collect=False (gc timed apart)", args)
-    plane = SweepSurface.plane(ORIGIN, NORMAL, SIDE)
+    planes = {"plane": (ORIGIN, NORMAL), "corner": (CORNER_ORIGIN, CORNER_NORMAL)}
     rows = []
     for size in (int(s) for s in args.sizes.split(",") if s):
         mesh = box(size)
-        for case, sweep in (("plane", plane), ("stroke", stroke_step())):
+        for case in ("plane", "corner", "stroke"):
+            sweep = SweepSurface.plane(*planes[case], SIDE) if case in planes else stroke_step()
             row = {"case": case, "tets": mesh.tet_count, **run_warpblob(mesh, sweep, args.repeat)}
-            if case == "plane":
-                row.update(run_vtk(mesh, args.repeat))
+            if case in planes:
+                row.update(run_vtk(mesh, args.repeat, *planes[case]))
                 row["speedup_vs_vtk_clip"] = row["vtk_clip_ms"] / row["wb_ms"]
                 vtk_all_tets = row["vtk_clip_ms"] + row["vtk_triangulate_ms"]
                 row["speedup_vs_vtk_clip_triangulated"] = vtk_all_tets / row["wb_ms"]
@@ -287,6 +294,7 @@ def main(argv=None):
     print("gc: collect_garbage after the cut, timed apart (not in wb ms); inv: tets with signed volume <= 0 "
           "(wb: whole mesh; vtk: of those made from crossed tets, after triangulate)")  # fmt: skip
     bench.finish({"rows": rows, "box_side": SIDE, "plane": {"origin": ORIGIN, "normal": NORMAL},
+                  "corner": {"origin": CORNER_ORIGIN, "normal": CORNER_NORMAL},
                   "stroke": {"speed": SPEED, "frame": FRAME, "edge": EDGE, "above": ABOVE},
                   "drill": {"plate": PLATE, "radius": DRILL_RADIUS, "frames": DRILL_FRAMES,
                             "margin": DRILL_MARGIN}})  # fmt: skip
