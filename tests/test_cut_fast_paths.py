@@ -297,11 +297,17 @@ def test_flood_counts_the_pieces_its_seeds_lie_in():
         pool = live[np.isin(ref[live], np.unique(ref[live])[pieces])]
         seeds = np.unique(rng.choice(pool, size=min(len(pool), int(rng.integers(1, 40))), replace=False))
         labels = np.arange(len(seeds), dtype=np.int32)
-        got = s._flood_pieces(seeds.astype(np.int32), labels, len(live) + 16)
-        assert got == len(np.unique(ref[seeds])), trial
+        failed, got, roots = s._flood_pieces(seeds.astype(np.int32), labels, len(live) + 16)
+        assert not failed and got == len(np.unique(ref[seeds])), trial
+        # joined labels are those in one piece, and only those (here every label has closed or met the one left)
+        same_root = roots[:, None] == roots[None, :]
+        same_piece = ref[seeds][:, None] == ref[seeds][None, :]
+        np.testing.assert_array_equal(same_root, same_piece)
         assert np.all(s._flood_mark == -1)
         if len(np.unique(ref[seeds])) > 1:  # the flood must pass one piece whole: too small a budget fails
-            assert s._flood_pieces(seeds.astype(np.int32), labels, len(seeds)) is None
+            failed, _, roots = s._flood_pieces(seeds.astype(np.int32), labels, len(seeds))
+            assert failed
+            assert np.all(ref[seeds][roots] == ref[seeds])  # what was joined before it stopped is joined
             assert np.all(s._flood_mark == -1)
 
 
@@ -338,6 +344,41 @@ def test_cutting_off_corners_counts_by_the_flood(monkeypatch):
         else:
             assert len(full_counts) == 5
         monkeypatch.setattr(TetStructure, "_components", real)
+
+
+def test_stroke_across_two_pieces_keeps_the_count_by_the_flood(monkeypatch):
+    """A box cut in two, then strokes across the gap (the removed cells in two clusters, one per piece) that
+    sever nothing, then one that cuts a corner off: the counts are a graph library's, and only the plane
+    through the whole box counted every cell (the strokes' joins show each cluster still joined); then
+    strips cut off both halves of another box at once, counted over every cell."""
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (12, 12, 12)))
+    counted = []
+    real = TetStructure._components
+    monkeypatch.setattr(TetStructure, "_components", lambda self, label: counted.append(label) or real(self, label))
+    s._component_count()
+    counted.clear()
+    r = cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.05, 0.02), 3.0), collect=False)
+    assert r.components == 2
+    for y in (0.31, 0.6, 0.73):
+        blade = np.array([[0.3, y, 1.1], [0.72, y + 0.02, 1.1]])
+        r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, 0.35)), collect=False)
+        ref = _face_graph_labels(s)
+        assert r.components == len(np.unique(ref[ref >= 0])) == 2
+    r = cut(s, SweepSurface.plane((0.1, 0.1, 0.12), (1, 1, 1), 0.6), collect=False)
+    ref = _face_graph_labels(s)
+    assert r.components == len(np.unique(ref[ref >= 0])) == 3
+    assert [c for c in counted if c is False] == [False]
+    # strips cut off both pieces at once (removed cells in two clusters, something severed): the joins cannot
+    # show the count kept, so every cell is counted, and the counts are the graph library's
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (8, 8, 8)))
+    s._component_count()
+    cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.05, 0.02), 3.0), collect=False)
+    counted.clear()
+    for origin, normal, pieces in (((0.5, 0.1, 0.11), (0, 1, 1), 4), ((0.5, 0.9, 0.11), (0, -1, 1), 6)):
+        r = cut(s, SweepSurface.plane(origin, normal, 3.0), collect=False)
+        ref = _face_graph_labels(s)
+        assert r.components == len(np.unique(ref[ref >= 0])) == pieces
+    assert [c for c in counted if c is False] == [False, False]
 
 
 def _moved_cuts(mesh, near_search, monkeypatch):

@@ -38,8 +38,9 @@ One call of :func:`cut`:
 4. **topology**: one batch edit of the :class:`~warpblob.mesh.TetStructure`
    (:meth:`~warpblob.mesh.TetStructure.replace_cells`: deferred removal,
    faces and edges found or made in vectorized passes), then
-5. **gc**: the pieces (counted round the new cells where they show that
-   nothing was severed, else over every cell), and
+5. **gc**: the pieces (a flood from the new cells and their kept
+   neighbours until at most one label can grow, else a count over every
+   cell), and
    :meth:`~warpblob.mesh.TetStructure.collect_garbage` (optional).
 
 Everything is validated before the structure changes: a cut that raises
@@ -459,7 +460,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     result.seconds["topology"] = t4 - t3
 
     # -- 5. garbage collection -------------------------------------------------------------------------
-    # the pieces: by a union-find around the new cells where that shows the cut severed nothing, else all
+    # the pieces: a flood from the new cells and their kept neighbours (the small pieces cut off), else all
     result.components = structure._pieces_after(pieces_before, plan["remove"], added)
     if collect:
         result.remap = structure.collect_garbage()

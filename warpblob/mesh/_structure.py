@@ -398,7 +398,8 @@ def flood_pieces_kernel(
     them, and joins its label with a neighbour's of another root (union by lower root). A label with no
     queued cell left has flooded its whole piece; the flood stops when at most one label still has queued
     cells (that one's piece can meet no finished one), or fails when ``budget`` cells are queued. Writes
-    ``out = (failed, distinct roots among the labels, cells queued)``; ``mark`` (-1 outside the flood on
+    ``out = (failed, distinct roots among the labels, cells queued)`` and leaves ``parent[i]`` the root of
+    label ``i`` (the joins made so far, when it failed); ``mark`` (-1 outside the flood on
     entry) holds a label at every queued cell, which the caller resets."""
     labels = parent.shape[0]
     for i in range(labels):
@@ -459,8 +460,9 @@ def flood_pieces_kernel(
                             active -= was - now
                             r = lo
     distinct = int(0)
-    for i in range(labels):
-        if _find_root(parent, i) == i:
+    for i in range(labels):  # each label straight to its root (roots are lower: done first), roots counted
+        parent[i] = parent[parent[i]]
+        if parent[i] == i:
             distinct += 1
     out[0] = failed
     out[1] = distinct
@@ -2179,13 +2181,17 @@ class TetStructure:
         Local first, O(the edit and the pieces it cut off): the new cells and the kept neighbours of the
         removed ones (the live old cells across their faces) are flooded outwards, each from its own
         label, through the live cells (:func:`flood_pieces_kernel`); labels that meet join, and the
-        flood stops when at most one label can still grow. Every piece the edit left in the old piece
-        it touched holds one of these cells (a path from it to a removed cell passes a kept neighbour),
-        so the labels left are those pieces: the count is ``previous - 1`` plus their number, where the
-        edit touched one old piece (there was one piece, or the removed cells form one cluster joined
-        through the faces they shared). An edit never joins pieces. Otherwise (several clusters in
-        several pieces, a batch of more than 1/64 of the cells, or a flood that would pass
-        1/:data:`_FLOOD_SHARE` of the cells: a cut through the whole mesh) all the cells are counted.
+        flood stops when at most one label can still grow. Every piece the edit left in an old piece it
+        touched holds one of these cells (a path from it to a removed cell passes a kept neighbour), and
+        an edit never joins pieces. So where the edit touched one old piece (there was one piece, or the
+        removed cells form one cluster joined through the faces they shared) the count is
+        ``previous - 1`` plus the labels left; elsewhere (several clusters: a flood of a few rings'
+        worth) or when the flood stopped early, where its joins show that each cluster's kept neighbours
+        are still joined and every new cell is joined to one of them, nothing was severed and the count
+        is ``previous``. Otherwise (a piece severed from a mesh in several pieces), for a batch
+        of more than 1/64 of the cells (a plane through the mesh), or when the flood would queue more
+        than 1/:data:`_FLOOD_SHARE` of the cells without that proof (a small edit that halves the mesh),
+        all the cells are counted.
         """
         removed = np.asarray(removed, dtype=np.int64).ravel()
         added = np.asarray(added, dtype=np.int64).ravel()
@@ -2195,29 +2201,43 @@ class TetStructure:
             return self._component_count()
         face_cells, cell_faces, alive = faces["cells"], cells["faces"], cells["alive"]
         rf = cell_faces[removed]  # (R, 4) their faces (kept in the dead slots)
-        if previous != 1:  # the removed cells' clusters (joined through the faces they shared): one?
+        across = face_cells[rf.ravel()].ravel()  # (8R,) their faces' cells now, removed cell j's at 8j..8j+7
+        kept = (across >= 0) & (across < int(added.min()))
+        kept[kept] = alive[across[kept]]
+        seeds = np.union1d(added, across[kept]).astype(np.int32)
+        cluster = None
+        if previous != 1:  # the removed cells' clusters (joined through the faces they shared)
             order = np.argsort(rf.ravel(), kind="stable")
             fs = rf.ravel()[order]
             same = np.flatnonzero(fs[1:] == fs[:-1])
             cluster = _connected(len(removed), order[same] // 4, order[same + 1] // 4, np.ones(len(removed), bool))
-            if int(cluster.max()) != 0:
-                return self._component_count()
-        across = face_cells[rf.ravel()].ravel()  # their faces' cells now
-        kept = (across >= 0) & (across < int(added.min()))
-        kept[kept] = alive[across[kept]]
-        seeds = np.union1d(added, across[kept]).astype(np.int32)
-        touched = self._flood_pieces(seeds, np.arange(len(seeds), dtype=np.int32),
-                                     max(len(seeds) + 1024, cells.count // _FLOOD_SHARE))  # fmt: skip
-        if touched is None:
+        one = cluster is None or int(cluster.max()) == 0  # the edit touched one old piece
+        # one old piece: flood until the pieces are known; several: a few rings' worth, for the joins
+        budget = max(len(seeds) + 1024, cells.count // _FLOOD_SHARE) if one else 8 * len(seeds) + 1024
+        failed, touched, roots = self._flood_pieces(seeds, np.arange(len(seeds), dtype=np.int32), budget)
+        if failed and cluster is None:
+            cluster = np.zeros(len(removed), dtype=np.int32)  # (one piece before: the removed cells in it)
+        count = None
+        if not failed and one:
+            count = int(previous) - 1 + touched
+        elif cluster is not None and np.any(kept):  # each cluster's kept neighbours joined, every new cell on them?
+            kept_root = roots[np.searchsorted(seeds, across[kept])]
+            owner = np.repeat(cluster, 8)[kept]
+            lo = np.full(int(cluster.max()) + 1, np.iinfo(np.int32).max, dtype=np.int64)
+            hi = np.full(int(cluster.max()) + 1, -1, dtype=np.int64)
+            np.minimum.at(lo, owner, kept_root)
+            np.maximum.at(hi, owner, kept_root)
+            if np.all((hi < 0) | (lo == hi)) and np.isin(roots[np.searchsorted(seeds, added)], kept_root).all():
+                count = int(previous)
+        if count is None:
             return self._component_count()
-        count = int(previous) - 1 + touched
         self._remember_pieces(count)
         return count
 
-    def _flood_pieces(self, seeds: np.ndarray, labels: np.ndarray, budget: int) -> int | None:
-        """How many pieces the labelled ``seeds`` (live cells; labels dense in ``[0, L)``, each label's
-        cells joined) lie in, by :func:`flood_pieces_kernel`; None when the flood would queue more than
-        ``budget`` cells."""
+    def _flood_pieces(self, seeds: np.ndarray, labels: np.ndarray, budget: int) -> tuple[bool, int, np.ndarray]:
+        """Flood from the labelled ``seeds`` (live cells; labels dense in ``[0, L)``, each label's cells
+        joined) by :func:`flood_pieces_kernel`, queueing at most ``budget`` cells: (failed, the number of
+        pieces the seeds lie in (when not failed), (L,) int32 root of each label)."""
         cells, faces = self._stores["cell"], self._stores["face"]
         cpu = wp.get_device("cpu")
         if self._flood_mark is None or len(self._flood_mark) < cells.count:
@@ -2226,6 +2246,7 @@ class TetStructure:
         budget = max(int(budget), len(seeds))
         queue = np.empty(budget, dtype=np.int32)
         count = int(labels.max()) + 1 if len(labels) else 0
+        roots = np.empty(count, dtype=np.int32)
         out = np.zeros(3, dtype=np.int32)
         wp.launch(flood_pieces_kernel, dim=1, device=cpu, inputs=[
             wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False),
@@ -2235,10 +2256,10 @@ class TetStructure:
             wp.array(np.ascontiguousarray(labels, dtype=np.int32), dtype=wp.int32, device=cpu), budget,
             wp.array(mark, dtype=wp.int32, device=cpu, copy=False),
             wp.array(queue, dtype=wp.int32, device=cpu, copy=False),
-            wp.empty(count, dtype=wp.int32, device=cpu), wp.empty(count, dtype=wp.int32, device=cpu),
+            wp.array(roots, dtype=wp.int32, device=cpu, copy=False), wp.empty(count, dtype=wp.int32, device=cpu),
             wp.array(out, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
         mark[queue[: out[2]]] = -1  # back to unmarked for the next flood
-        return None if out[0] else int(out[1])
+        return bool(out[0]), int(out[1]), roots
 
     def _cells_near(self, lower, upper) -> np.ndarray | None:
         """The live cells whose rest boxes meet a box ``[lower[i], upper[i]]`` ((3,) or (B, 3), rest frame),
