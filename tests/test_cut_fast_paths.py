@@ -281,6 +281,14 @@ def _face_graph_labels(s):
     return np.where(alive, ref, -1)
 
 
+def _full_counts(monkeypatch) -> list:
+    """A list that gets a False each time every cell of a structure is counted (for a piece count)."""
+    counted = []
+    real = TetStructure._components
+    monkeypatch.setattr(TetStructure, "_components", lambda self, label: counted.append(label) or real(self, label))
+    return counted
+
+
 def test_flood_counts_the_pieces_its_seeds_lie_in():
     """The flood from labelled seed cells (each its own label) against a graph library: the number of
     distinct components among the seeds, for seed sets in one, two and three of a mesh's pieces; a budget
@@ -296,8 +304,7 @@ def test_flood_counts_the_pieces_its_seeds_lie_in():
         pieces = rng.choice(4, size=rng.integers(1, 4), replace=False)
         pool = live[np.isin(ref[live], np.unique(ref[live])[pieces])]
         seeds = np.unique(rng.choice(pool, size=min(len(pool), int(rng.integers(1, 40))), replace=False))
-        labels = np.arange(len(seeds), dtype=np.int32)
-        failed, got, roots = s._flood_pieces(seeds.astype(np.int32), labels, len(live) + 16)
+        failed, got, roots = s._flood_pieces(seeds.astype(np.int32), len(live) + 16)
         assert not failed and got == len(np.unique(ref[seeds])), trial
         # joined labels are those in one piece, and only those (here every label has closed or met the one left)
         same_root = roots[:, None] == roots[None, :]
@@ -305,7 +312,7 @@ def test_flood_counts_the_pieces_its_seeds_lie_in():
         np.testing.assert_array_equal(same_root, same_piece)
         assert np.all(s._flood_mark == -1)
         if len(np.unique(ref[seeds])) > 1:  # the flood must pass one piece whole: too small a budget fails
-            failed, _, roots = s._flood_pieces(seeds.astype(np.int32), labels, len(seeds))
+            failed, _, roots = s._flood_pieces(seeds.astype(np.int32), len(seeds))
             assert failed
             assert np.all(ref[seeds][roots] == ref[seeds])  # what was joined before it stopped is joined
             assert np.all(s._flood_mark == -1)
@@ -317,14 +324,11 @@ def test_cutting_off_corners_counts_by_the_flood(monkeypatch):
     and it came from the flood, not from a count of every cell; with a flood budget too small for the
     pieces the whole count is taken instead, with the same result."""
     flood = TetStructure._flood_pieces
+    counted = _full_counts(monkeypatch)
     for floods in (True, False):
         if not floods:  # the least budget: the seeds themselves
-            monkeypatch.setattr(TetStructure, "_flood_pieces", lambda self, seeds, labels, budget:
-                                flood(self, seeds, labels, len(seeds)))  # fmt: skip
+            monkeypatch.setattr(TetStructure, "_flood_pieces", lambda self, seeds, budget: flood(self, seeds, len(seeds)))
         s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (14, 14, 14)))
-        counted = []
-        real = TetStructure._components
-        monkeypatch.setattr(TetStructure, "_components", lambda self, label: counted.append(label) or real(self, label))
         s._component_count()
         counted.clear()
         corners = [((0.12, 0.12, 0.12), (1, 1, 1)), ((0.88, 0.1, 0.1), (-1, 1, 1)), ((0.1, 0.9, 0.1), (1, -1, 1))]
@@ -343,7 +347,6 @@ def test_cutting_off_corners_counts_by_the_flood(monkeypatch):
             assert len(full_counts) == 1
         else:
             assert len(full_counts) == 5
-        monkeypatch.setattr(TetStructure, "_components", real)
 
 
 def test_stroke_across_two_pieces_keeps_the_count_by_the_flood(monkeypatch):
@@ -352,9 +355,7 @@ def test_stroke_across_two_pieces_keeps_the_count_by_the_flood(monkeypatch):
     through the whole box counted every cell (the strokes' joins show each cluster still joined); then
     strips cut off both halves of another box at once, counted over every cell."""
     s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (12, 12, 12)))
-    counted = []
-    real = TetStructure._components
-    monkeypatch.setattr(TetStructure, "_components", lambda self, label: counted.append(label) or real(self, label))
+    counted = _full_counts(monkeypatch)
     s._component_count()
     counted.clear()
     r = cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.05, 0.02), 3.0), collect=False)

@@ -383,7 +383,6 @@ def flood_pieces_kernel(
     cell_faces: wp.array(dtype=wp.vec4i),
     cell_alive: wp.array(dtype=wp.uint8),
     seeds: wp.array(dtype=wp.int32),
-    seed_label: wp.array(dtype=wp.int32),
     budget: int,
     mark: wp.array(dtype=wp.int32),
     queue: wp.array(dtype=wp.int32),
@@ -393,7 +392,8 @@ def flood_pieces_kernel(
 ):
     """The pieces an edit touched, by a breadth-first flood from labelled seed cells (one thread).
 
-    Every seed (label ``seed_label[i]`` in ``[0, L)``, ``L = parent.shape[0]``) is queued; each cell taken
+    Every seed is queued with its own label (seed ``i``: label ``i``; ``parent`` and ``pending`` hold one
+    entry per seed); each cell taken
     from the queue marks its unmarked live neighbours (across its faces) with its label's root and queues
     them, and joins its label with a neighbour's of another root (union by lower root). A label with no
     queued cell left has flooded its whole piece; the flood stops when at most one label still has queued
@@ -401,20 +401,14 @@ def flood_pieces_kernel(
     ``out = (failed, distinct roots among the labels, cells queued)`` and leaves ``parent[i]`` the root of
     label ``i`` (the joins made so far, when it failed); ``mark`` (-1 outside the flood on
     entry) holds a label at every queued cell, which the caller resets."""
-    labels = parent.shape[0]
+    labels = seeds.shape[0]
     for i in range(labels):
         parent[i] = i
-        pending[i] = 0
-    tail = int(0)
-    for i in range(seeds.shape[0]):
-        mark[seeds[i]] = seed_label[i]
-        queue[tail] = seeds[i]
-        tail += 1
-        pending[seed_label[i]] += 1
-    active = int(0)
-    for i in range(labels):
-        if pending[i] > 0:
-            active += 1
+        pending[i] = 1
+        mark[seeds[i]] = i
+        queue[i] = seeds[i]
+    tail = labels
+    active = labels
     head = int(0)
     failed = int(0)
     while head < tail and active > 1 and failed == 0:
@@ -2214,7 +2208,7 @@ class TetStructure:
         one = cluster is None or int(cluster.max()) == 0  # the edit touched one old piece
         # one old piece: flood until the pieces are known; several: a few rings' worth, for the joins
         budget = max(len(seeds) + 1024, cells.count // _FLOOD_SHARE) if one else 8 * len(seeds) + 1024
-        failed, touched, roots = self._flood_pieces(seeds, np.arange(len(seeds), dtype=np.int32), budget)
+        failed, touched, roots = self._flood_pieces(seeds, budget)
         if failed and cluster is None:
             cluster = np.zeros(len(removed), dtype=np.int32)  # (one piece before: the removed cells in it)
         count = None
@@ -2234,10 +2228,10 @@ class TetStructure:
         self._remember_pieces(count)
         return count
 
-    def _flood_pieces(self, seeds: np.ndarray, labels: np.ndarray, budget: int) -> tuple[bool, int, np.ndarray]:
-        """Flood from the labelled ``seeds`` (live cells; labels dense in ``[0, L)``, each label's cells
-        joined) by :func:`flood_pieces_kernel`, queueing at most ``budget`` cells: (failed, the number of
-        pieces the seeds lie in (when not failed), (L,) int32 root of each label)."""
+    def _flood_pieces(self, seeds: np.ndarray, budget: int) -> tuple[bool, int, np.ndarray]:
+        """Flood from the (L,) distinct live cells ``seeds``, each its own label, by
+        :func:`flood_pieces_kernel`, queueing at most ``budget`` cells: (failed, the number of pieces the
+        seeds lie in (when not failed), (L,) int32 root of each seed's label)."""
         cells, faces = self._stores["cell"], self._stores["face"]
         cpu = wp.get_device("cpu")
         if self._flood_mark is None or len(self._flood_mark) < cells.count:
@@ -2245,15 +2239,14 @@ class TetStructure:
         mark = self._flood_mark
         budget = max(int(budget), len(seeds))
         queue = np.empty(budget, dtype=np.int32)
-        count = int(labels.max()) + 1 if len(labels) else 0
+        count = len(seeds)
         roots = np.empty(count, dtype=np.int32)
         out = np.zeros(3, dtype=np.int32)
         wp.launch(flood_pieces_kernel, dim=1, device=cpu, inputs=[
             wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False),
             wp.array(cells["faces"], dtype=wp.vec4i, device=cpu, copy=False),
             wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
-            wp.array(np.ascontiguousarray(seeds, dtype=np.int32), dtype=wp.int32, device=cpu),
-            wp.array(np.ascontiguousarray(labels, dtype=np.int32), dtype=wp.int32, device=cpu), budget,
+            wp.array(np.ascontiguousarray(seeds, dtype=np.int32), dtype=wp.int32, device=cpu), budget,
             wp.array(mark, dtype=wp.int32, device=cpu, copy=False),
             wp.array(queue, dtype=wp.int32, device=cpu, copy=False),
             wp.array(roots, dtype=wp.int32, device=cpu, copy=False), wp.empty(count, dtype=wp.int32, device=cpu),
