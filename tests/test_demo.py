@@ -99,6 +99,9 @@ def test_quick_demo_runs_the_whole_pipeline_into_one_animated_stage(tmp_path):
 
     r = run_cli("demo", "--out", str(tmp_path), "--quick")
     assert r.returncode == 0, r.stderr[-3000:]
+    # the scenario references resolve while the stage is composed (no USD warnings), and nothing is left over
+    assert "Could not open asset" not in r.stderr, r.stderr[-3000:]
+    assert not list(tmp_path.glob(".*")), list(tmp_path.glob(".*"))
     summary = json.loads((tmp_path / "summary.json").read_text())
     pipeline = summary["pipeline"]
     for name in ("probe_tumor", "cut_tumor", "drill_eggshell"):

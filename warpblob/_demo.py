@@ -211,12 +211,27 @@ def compose_stage(path, meshes: dict, scenarios: dict) -> pathlib.Path:
     Returns:
         ``path`` as a :class:`pathlib.Path`.
     """
-    from pxr import Gf, Sdf, Usd, UsdGeom
-
-    from .io.usd import author_mesh, export_atomically, new_stage
+    from .io.usd import export_atomically
 
     path = pathlib.Path(path)
-    stage = new_stage(default_prim="Demo")
+    # composed in a layer beside the scenario files, so that their relative paths resolve while
+    # the references are added (an in-memory layer would warn that it cannot open them)
+    anchor = path.parent / f".{path.stem}.compose.usda"
+    try:
+        flat = _compose(anchor, path, meshes, scenarios)
+    finally:
+        anchor.unlink(missing_ok=True)
+    flat.defaultPrim = "Demo"
+    return export_atomically(flat, path, "demo")
+
+
+def _compose(anchor: pathlib.Path, path: pathlib.Path, meshes: dict, scenarios: dict):
+    """:func:`compose_stage`'s stage, authored in the layer file ``anchor`` and flattened into one layer."""
+    from pxr import Gf, Usd, UsdGeom
+
+    from .io.usd import author_mesh, new_stage
+
+    stage = new_stage(default_prim="Demo", path=anchor)
     columns = 3
     sizes = [np.ptp(m.vertices, axis=0)[:2].max() for m in meshes.values() if m.vertex_count]
     pitch = 1.2 * float(max(sizes, default=1.0))
@@ -245,13 +260,5 @@ def compose_stage(path, meshes: dict, scenarios: dict) -> pathlib.Path:
     stage.SetEndTimeCode(end)
     stage.SetTimeCodesPerSecond(rate)
     stage.SetFramesPerSecond(rate)
-    # compose beside the scenario files (their relative paths resolve), then flatten into one layer
-    anchor = path.parent / f".{path.stem}.compose.usda"
-    stage.GetRootLayer().Export(str(anchor))
-    try:
-        flat = Usd.Stage.Open(str(anchor)).Flatten()
-    finally:
-        anchor.unlink()
-    flat.defaultPrim = "Demo"
-    return export_atomically(flat, path, "demo")
+    return stage.Flatten()
 
