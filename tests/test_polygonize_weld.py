@@ -296,3 +296,13 @@ def test_the_weld_kernel_and_the_vectorized_rounds_weld_the_same_patch():
         assert len(used) == len(v)
         assert triangle_set(sv[used].astype(np.float32), local.reshape(-1, 3)) == expected
         assert np.all(fans_per_vertex(local.reshape(-1, 3)) == 1)
+
+
+def test_vertex_valence_counts_every_triangle_at_a_vertex(device):
+    """The contraction's fan sizes against numpy's bincount, on a mesh large enough that the CPU's
+    range-split launches would cut it into pieces (the count must not lose increments between threads)."""
+    mesh = wb.polygonize(wb.scenes.mug(), cellsize=0.05, relax=False, device="cpu")
+    faces = np.asarray(mesh.faces, np.int32)
+    tris = wp.array(faces, dtype=wp.vec3i, device=device)
+    valence = _weld.vertex_valence(tris, mesh.vertex_count, device).numpy()
+    np.testing.assert_array_equal(valence, np.bincount(faces.reshape(-1), minlength=mesh.vertex_count))

@@ -117,7 +117,11 @@ def launch(
     workers take pieces as they finish the last one, so a range whose cost is
     uneven (surface in one half, empty space in the other) still keeps every
     core busy; on CUDA it is one launch. Results do not depend on the split
-    (each item is computed by the same code independently).
+    (each item is computed by the same code independently). Warp's atomics
+    on the CPU are plain read-modify-writes, not atomic across these
+    threads: a kernel that accumulates into shared entries with
+    ``wp.atomic_add`` is launched with ``threads=1`` (a flag that every
+    writer sets to the same value needs no atomics).
     """
     threads = check_threads(threads)
     if dim <= 0:

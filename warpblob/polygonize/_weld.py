@@ -42,24 +42,39 @@ def short_edges_kernel(
     offset: int,
     flags: wp.array(dtype=wp.int32),
     counts: wp.array(dtype=wp.int32),
-    valence: wp.array(dtype=wp.int32),
 ):
     """``counts`` 1 for a triangle with an edge at most ``limit`` long, whose
-    ends are flagged (every writer stores 1, so concurrent writes agree), and
-    the triangles at each vertex (integer atomics: the counts do not depend
-    on the order), which the contraction needs when there is a short edge."""
+    ends are flagged (every writer stores 1, so concurrent writes agree)."""
     tid = wp.tid() + offset
     t = triangles[tid]
     found = int(0)
     for k in range(3):
         a = t[k]
         b = t[(k + 1) % 3]
-        wp.atomic_add(valence, a, 1)
         if wp.length_sq(positions[a] - positions[b]) <= limit * limit:
             flags[a] = 1
             flags[b] = 1
             found = 1
     counts[tid] = found
+
+
+@wp.kernel(enable_backward=False)
+def valence_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, valence: wp.array(dtype=wp.int32)):
+    """``valence[v] +=`` the triangles at each vertex ``v``. Warp's atomics on
+    the CPU are plain read-modify-writes, so on the CPU this runs on one
+    thread (see :func:`vertex_valence`)."""
+    t = triangles[wp.tid() + offset]
+    for k in range(3):
+        wp.atomic_add(valence, t[k], 1)
+
+
+def vertex_valence(triangles, n_vertices: int, device) -> wp.array:
+    """(V,) int32 number of triangles at each vertex: integer sums, so the
+    same whatever the order; one thread on the CPU (its atomics are not
+    atomic across the range-split launcher's threads), one launch on CUDA."""
+    valence = wp.zeros(n_vertices, dtype=wp.int32, device=device)
+    launch(valence_kernel, triangles.shape[0], [triangles], [valence], device, threads=1)
+    return valence
 
 
 @wp.kernel(enable_backward=False)
@@ -172,14 +187,14 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None):
     n_vertices = positions.shape[0]
     flags = wp.zeros(n_vertices, dtype=wp.int32, device=device)
     counts = wp.empty(n, dtype=wp.int32, device=device)
-    valence = wp.zeros(n_vertices, dtype=wp.int32, device=device)
     launch(
-        short_edges_kernel, n, [positions, triangles, float(WELD * h)], [flags, counts, valence],
+        short_edges_kernel, n, [positions, triangles, float(WELD * h)], [flags, counts],
         device, threads, min_chunk=CELL_CHUNK,
     )  # fmt: skip
     _, n_short = scan(counts)  # host sync: whether any edge is short
     if n_short == 0:
         return triangles, positions, normals, colors, 0
+    valence = vertex_valence(triangles, n_vertices, device)  # the contraction needs the fans' sizes
     touching = wp.empty(n, dtype=wp.int32, device=device)
     launch(touching_kernel, n, [triangles, flags], [touching], device, threads, min_chunk=LIGHT_CHUNK)
     scanned, n_patch = scan(touching)
