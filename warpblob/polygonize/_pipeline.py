@@ -401,7 +401,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     )  # fmt: skip
     # 6. weld the ends of edges shorter than a small fraction of the cell
     triangles, positions, normals, colors, n_welded = _weld.weld(
-        triangles, positions, normals, colors, g.h, dev, threads
+        triangles, positions, normals, colors, g.h, dev, threads, in_place=True
     )
     n_kept = triangles.shape[0]
     lap("faces")

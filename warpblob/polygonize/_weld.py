@@ -22,7 +22,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from .._stages import compact_kernel, scan, scans
+from .._stages import compact_kernel, scan
 from ._kernels import CELL_CHUNK, LIGHT_CHUNK
 
 #: mesh edges shorter than WELD cells are contracted. A triangle of the face
@@ -122,66 +122,60 @@ def scatter_triangles_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def distinct_kernel(triangles: wp.array(dtype=wp.vec3i), offset: int, keep: wp.array(dtype=wp.int32)):
-    """1 for a triangle with three distinct corners (the others collapsed in a contraction)."""
+def move_kernel(
+    src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
+):
+    """``out[dst[i]] = out[src[i]]`` (sources and destinations disjoint)."""
+    tid = wp.tid() + offset
+    out[dst[tid]] = out[src[tid]]
+
+
+@wp.kernel(enable_backward=False)
+def move_from_kernel(
+    src: wp.array(dtype=wp.int32),
+    dst: wp.array(dtype=wp.int32),
+    data: wp.array(dtype=wp.vec3),
+    offset: int,
+    out: wp.array(dtype=wp.vec3),
+):
+    """``out[dst[i]] = data[src[i]]``."""
+    tid = wp.tid() + offset
+    out[dst[tid]] = data[src[tid]]
+
+
+@wp.kernel(enable_backward=False)
+def renumber_kernel(
+    index: wp.array(dtype=wp.int32), first: int, offset: int, triangles: wp.array(dtype=wp.vec3i)
+):
+    """Corners ``v >= first`` renumbered ``index[v - first]``."""
     tid = wp.tid() + offset
     t = triangles[tid]
-    keep[tid] = wp.where(t[0] != t[1] and t[1] != t[2] and t[0] != t[2], 1, 0)
+    if t[0] >= first or t[1] >= first or t[2] >= first:
+        for k in range(3):
+            if t[k] >= first:
+                t[k] = index[t[k] - first]
+        triangles[tid] = t
 
 
-@wp.kernel(enable_backward=False)
-def compact_triangles_kernel(
-    triangles: wp.array(dtype=wp.vec3i),
-    keep: wp.array(dtype=wp.int32),
-    scanned: wp.array(dtype=wp.int32),
-    index: wp.array(dtype=wp.int32),
-    offset: int,
-    out: wp.array(dtype=wp.vec3i),
-):
-    """The kept triangles, in order, each corner ``v`` renumbered ``index[v]``."""
-    tid = wp.tid() + offset
-    if keep[tid] != 0:
-        t = triangles[tid]
-        out[scanned[tid]] = wp.vec3i(index[t[0]], index[t[1]], index[t[2]])
-
-
-@wp.kernel(enable_backward=False)
-def set_kernel(ids: wp.array(dtype=wp.int32), value: int, offset: int, out: wp.array(dtype=wp.int32)):
-    """``out[ids[i]] = value``."""
-    out[ids[wp.tid() + offset]] = value
-
-
-@wp.kernel(enable_backward=False)
-def gather_vertices_kernel(
-    kept: wp.array(dtype=wp.int32),
-    positions: wp.array(dtype=wp.vec3),
-    normals: wp.array(dtype=wp.vec3),
-    colors: wp.array(dtype=wp.vec3),
-    offset: int,
-    out_positions: wp.array(dtype=wp.vec3),
-    out_normals: wp.array(dtype=wp.vec3),
-    out_colors: wp.array(dtype=wp.vec3),
-):
-    tid = wp.tid() + offset
-    v = kept[tid]
-    out_positions[tid] = positions[v]
-    out_normals[tid] = normals[v]
-    out_colors[tid] = colors[v]
-
-
-def weld(triangles, positions, normals, colors, h: float, device, threads=None):
+def weld(triangles, positions, normals, colors, h: float, device, threads=None, *, in_place: bool = False):
     """Contract the edges shorter than ``WELD * h`` of a closed mesh (see the
     module docstring), drop the collapsed triangles and the removed vertices.
 
     Args:
         triangles: (T,) vec3i vertex indices, consistently oriented.
-        positions, normals, colors: (V,) vec3 vertex data (not modified).
+        positions, normals, colors: (V,) vec3 vertex data.
         h: cell size, model units.
+        in_place: edit the four arrays and return views of them (the
+            pipeline's own arrays: no copy of the mesh); by default they are
+            not modified.
 
     Returns:
         (triangles, positions, normals, colors, welded vertices). The usual
         case, no short edge, costs one kernel and one scan; otherwise only the
-        triangles at the ends of short edges are read back to the host.
+        triangles at the ends of short edges are read back to the host, and
+        the triangles and vertices that go leave holes that the last ones
+        fill (the order is otherwise kept; the moved vertices' corners are
+        renumbered in one pass over the triangles).
     """
     n = triangles.shape[0]
     n_vertices = positions.shape[0]
@@ -220,35 +214,60 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None):
     corners, alive = contract_patch(local, points, candidate, counts, WELD * h)
     if np.all(alive):
         return triangles, positions, normals, colors, 0
+    # a triangle whose corners are no longer distinct goes too (the contraction leaves none alive)
+    alive &= (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2]) & (corners[:, 0] != corners[:, 2])
     # a vertex goes when no triangle is left at it: none outside the patch, none alive in it
     outside = counts - np.bincount(local.reshape(-1), minlength=len(vertices))
     referenced = np.bincount(corners[alive].reshape(-1), minlength=len(vertices)) > 0
-    removed = vertices[(outside == 0) & ~referenced].astype(np.int32)
-    # a triangle that went is written with three equal corners, which the compaction drops
-    new = np.where(alive[:, None], vertices[corners], tris[:, :1])
-    welded = wp.clone(triangles)
+    removed = np.sort(vertices[(outside == 0) & ~referenced])
+    patch_ids = ids.numpy()  # (host sync: n_patch entries)
+    # the few triangles and vertices that go leave holes, filled from the end of the arrays: no pass
+    # over the whole mesh but the renumbering of the moved vertices (the order is otherwise kept)
+    t_holes, t_movers = _fill_from_end(np.sort(patch_ids[~alive]), n)
+    v_holes, v_movers = _fill_from_end(removed, n_vertices)
+    n_kept, n_used = n - int(np.count_nonzero(~alive)), n_vertices - len(removed)
+    welded = triangles if in_place else wp.clone(triangles)
+    live = np.flatnonzero(alive)
     launch(
-        scatter_triangles_kernel, n_patch, [ids, wp.array(new.astype(np.int32), dtype=wp.vec3i, device=device)],
+        scatter_triangles_kernel, len(live),
+        [_ints(patch_ids[live], device), wp.array(vertices[corners[live]].astype(np.int32), dtype=wp.vec3i, device=device)],
         [welded], device, threads, min_chunk=LIGHT_CHUNK,
     )  # fmt: skip
-    keep = wp.empty(n, dtype=wp.int32, device=device)
-    launch(distinct_kernel, n, [welded], [keep], device, threads, min_chunk=LIGHT_CHUNK)
-    used = wp.full(n_vertices, 1, dtype=wp.int32, device=device)
-    launch(set_kernel, len(removed), [wp.array(removed, dtype=wp.int32, device=device), 0], [used], device, threads)
-    (offsets, new_index), (n_kept, n_used) = scans(keep, used)  # host sync: the sizes of the welded mesh
-    kept = wp.empty(n_used, dtype=wp.int32, device=device)
-    launch(compact_kernel, n_vertices, [used, new_index], [kept], device, threads, min_chunk=LIGHT_CHUNK)
-    out = [wp.empty(n_used, dtype=wp.vec3, device=device) for _ in range(3)]
-    launch(
-        gather_vertices_kernel, n_used, [kept, positions, normals, colors], out, device, threads,
-        min_chunk=LIGHT_CHUNK,
-    )  # fmt: skip
-    renumbered = wp.empty(n_kept, dtype=wp.vec3i, device=device)
-    launch(
-        compact_triangles_kernel, n, [welded, keep, offsets, new_index], [renumbered], device, threads,
-        min_chunk=LIGHT_CHUNK,
-    )  # fmt: skip
-    return (renumbered, *out, len(removed))
+    launch(move_kernel, len(t_holes), [_ints(t_movers, device), _ints(t_holes, device)], [welded], device, threads,
+           min_chunk=LIGHT_CHUNK)  # fmt: skip
+    out = []
+    movers, holes = _ints(v_movers, device), _ints(v_holes, device)
+    for data in (positions, normals, colors):
+        if in_place:
+            moved = data
+        else:
+            moved = wp.empty(n_used, dtype=wp.vec3, device=device)
+            wp.copy(moved, data, count=n_used)
+        launch(move_from_kernel, len(v_holes), [movers, holes, data], [moved], device, threads,
+               min_chunk=LIGHT_CHUNK)  # fmt: skip
+        out.append(moved[:n_used])
+    triangles = welded[:n_kept]
+    if len(v_holes):
+        # a moved vertex v >= n_used is renumbered index[v - n_used]
+        index = np.full(n_vertices - n_used, -1, dtype=np.int32)
+        index[v_movers - n_used] = v_holes
+        launch(renumber_kernel, n_kept, [_ints(index, device), n_used], [triangles], device, threads,
+               min_chunk=LIGHT_CHUNK)  # fmt: skip
+    return (triangles, *out, len(removed))
+
+
+def _fill_from_end(gone: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Compaction of ``n`` slots of which the sorted ``gone`` go: (holes, movers), the
+    slots below the new size ``n - len(gone)`` that went and the kept slots at or above
+    it that fill them, both ascending and of one length."""
+    size = n - len(gone)
+    tail = np.ones(len(gone), dtype=bool)
+    tail[gone[gone >= size] - size] = False
+    return gone[gone < size].astype(np.int32), (size + np.flatnonzero(tail)).astype(np.int32)
+
+
+def _ints(values: np.ndarray, device) -> wp.array:
+    return wp.array(np.ascontiguousarray(values, dtype=np.int32), dtype=wp.int32, device=device)
 
 
 def contract(
