@@ -52,7 +52,9 @@ def make_relax_kernel():
         the surface by Newton steps along the gradient until ``|F - iso| <=
         tolerance`` (the vertex stays where it was if they do not get there,
         or wander farther than ``reach``). The corners are sorted by vertex;
-        the thread of a vertex's first corner does the work, the others stop."""
+        the thread of a vertex's first corner does the work, the others stop.
+        A move is written at the corner (``new_*[corner]``), and ``moved[v]``
+        is that corner + 1 (0: not moved)."""
         tid = wp.tid() + offset
         evaluations[tid] = 0
         v = corner_vertex[tid]
@@ -88,10 +90,10 @@ def make_relax_kernel():
             bend = rise / spread * wp.dot(step, step)
         r, x, count, ok = project(m, x0 + step + bend * n, iso, tolerance, 8, 0.5 * reach)
         if ok and wp.length(x - x0) <= reach:
-            new_positions[v] = x
-            new_normals[v] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
-            new_colors[v] = wp.vec3(r[4], r[5], r[6])
-            moved[v] = 1
+            new_positions[tid] = x
+            new_normals[tid] = -wp.normalize(wp.vec3(r[1], r[2], r[3]))
+            new_colors[tid] = wp.vec3(r[4], r[5], r[6])
+            moved[v] = tid + 1
         evaluations[tid] = count
 
     return relax_kernel
@@ -159,9 +161,19 @@ def emit_corners_kernel(
             o += 1
 
 
+@wp.func
+def moved_to(
+    positions: wp.array(dtype=wp.vec3), new_positions: wp.array(dtype=wp.vec3), moved: wp.array(dtype=wp.int32), v: int
+):
+    """Vertex ``v``'s position with its move, if it has one (see ``relax_kernel``)."""
+    if moved[v] != 0:
+        return new_positions[moved[v] - 1]
+    return positions[v]
+
+
 @wp.kernel(enable_backward=False)
 def flipped_kernel(
-    old_positions: wp.array(dtype=wp.vec3),
+    positions: wp.array(dtype=wp.vec3),
     new_positions: wp.array(dtype=wp.vec3),
     triangles: wp.array(dtype=wp.vec3i),
     moved: wp.array(dtype=wp.int32),
@@ -176,14 +188,14 @@ def flipped_kernel(
     when it had a larger one."""
     tid = wp.tid() + offset
     t = triangles[tid]
-    if moved[t[0]] + moved[t[1]] + moved[t[2]] == 0:
+    if moved[t[0]] == 0 and moved[t[1]] == 0 and moved[t[2]] == 0:
         return
-    a = old_positions[t[0]]
-    b = old_positions[t[1]]
-    c = old_positions[t[2]]
-    a1 = new_positions[t[0]]
-    b1 = new_positions[t[1]]
-    c1 = new_positions[t[2]]
+    a = positions[t[0]]
+    b = positions[t[1]]
+    c = positions[t[2]]
+    a1 = moved_to(positions, new_positions, moved, t[0])
+    b1 = moved_to(positions, new_positions, moved, t[1])
+    c1 = moved_to(positions, new_positions, moved, t[2])
     n0 = wp.cross(b - a, c - a)
     n1 = wp.cross(b1 - a1, c1 - a1)
     # an edge the weld left (the ends could not merge without changing the topology) is
@@ -198,44 +210,58 @@ def flipped_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def revert_kernel(
-    revert: wp.array(dtype=wp.int32),
-    old_positions: wp.array(dtype=wp.vec3),
-    old_normals: wp.array(dtype=wp.vec3),
-    old_colors: wp.array(dtype=wp.vec3),
+def revert_kernel(revert: wp.array(dtype=wp.int32), offset: int, moved: wp.array(dtype=wp.int32)):
+    """A flagged vertex's move is dropped."""
+    tid = wp.tid() + offset
+    if revert[tid] != 0:
+        moved[tid] = 0
+
+
+@wp.kernel(enable_backward=False)
+def commit_kernel(
+    corner_vertex: wp.array(dtype=wp.int32),
+    moved: wp.array(dtype=wp.int32),
+    new_positions: wp.array(dtype=wp.vec3),
+    new_normals: wp.array(dtype=wp.vec3),
+    new_colors: wp.array(dtype=wp.vec3),
     offset: int,
     positions: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     colors: wp.array(dtype=wp.vec3),
-    moved: wp.array(dtype=wp.int32),
+    committed: wp.array(dtype=wp.int32),
 ):
+    """The kept moves written at their vertices (the corner that holds each), 1 in ``committed`` there."""
     tid = wp.tid() + offset
-    if revert[tid] != 0:
-        positions[tid] = old_positions[tid]
-        normals[tid] = old_normals[tid]
-        colors[tid] = old_colors[tid]
-        moved[tid] = 0
+    v = corner_vertex[tid]
+    committed[tid] = 0
+    if moved[v] == tid + 1:
+        positions[v] = new_positions[tid]
+        normals[v] = new_normals[tid]
+        colors[v] = new_colors[tid]
+        committed[tid] = 1
 
 
 def relax(
     relax_kernel, m, triangles, positions, normals, colors, iso: float, tolerance: float, h: float, limit: int, device,
-    threads=None,
+    threads=None, *, in_place: bool = False,
 ):  # fmt: skip
     """Tangential relaxation of the vertices of skinny triangles (see
     :func:`~warpblob.polygonize.polygonize`'s ``relax``) with the kernel of
-    :func:`make_relax_kernel` over model arrays ``m``. Returns new (positions,
+    :func:`make_relax_kernel` over model arrays ``m``. Returns (positions,
     normals, colors) (V,) vec3 arrays, the number of vertices that moved and
     the field evaluations it took; ``h`` (model units) bounds a move, ``limit``
-    the bytes it may allocate.
+    the bytes it may allocate. With ``in_place`` the moves are written into
+    the arrays given (the pipeline's own), else into copies.
 
     The corners at flagged vertices are listed as (vertex, triangle) pairs,
     sorted by vertex (``wp.utils.radix_sort_pairs``, stable), so each vertex
     reads its own triangles without atomics; the thread of a vertex's first
-    corner moves it.
-    Moves are then checked per triangle (none turned over, unless it has an
-    edge the weld left, none collapsed or made skinnier than both before and
-    the angle limit) and the moved corners of a failing triangle are put
-    back, until every triangle passes."""
+    corner moves it, into that corner's slot of per-corner buffers (no copy
+    of the mesh's arrays). Moves are then checked per triangle (none turned
+    over, unless it has an edge the weld left, none collapsed or made
+    skinnier than both before and the angle limit) and the moved corners of
+    a failing triangle are put back, until every triangle passes; the kept
+    moves are then written at their vertices."""
     n_vertices = positions.shape[0]
     n_triangles = triangles.shape[0]
     cos_limit = float(np.cos(np.radians(RELAX_ANGLE)))
@@ -249,7 +275,7 @@ def relax(
     offsets, n_corners = scan(counts)
     if n_corners == 0:
         return positions, normals, colors, 0, 0
-    check_memory("polygonize", "relaxation", n_corners * 20 + n_vertices * 40, limit)
+    check_memory("polygonize", "relaxation", n_corners * 60 + n_vertices * 4, limit)
     corner_vertex = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
     corner_triangle = wp.empty(2 * n_corners, dtype=wp.int32, device=device)
     launch(
@@ -257,8 +283,9 @@ def relax(
         device, threads, min_chunk=LIGHT_CHUNK,
     )  # fmt: skip
     wp.utils.radix_sort_pairs(corner_vertex, corner_triangle, n_corners)
-    new = [wp.clone(a) for a in (positions, normals, colors)]
-    moved = wp.zeros(n_vertices, dtype=wp.int32, device=device)
+    new = [wp.empty(n_corners, dtype=wp.vec3, device=device) for _ in range(3)]
+    moved = flags  # the flags are read no more: from here 0, or the corner holding the vertex's move + 1
+    moved.zero_()
     evaluations = wp.empty(n_corners, dtype=wp.int32, device=device)
     launch(
         relax_kernel, n_corners,
@@ -274,11 +301,12 @@ def relax(
         _, n_revert = scan(revert)
         if n_revert == 0:
             break
-        launch(
-            revert_kernel, n_vertices, [revert, positions, normals, colors], [*new, moved],
-            device, threads, min_chunk=LIGHT_CHUNK,
-        )  # fmt: skip
+        launch(revert_kernel, n_vertices, [revert], [moved], device, threads, min_chunk=LIGHT_CHUNK)
     else:  # pragma: no cover - the moves never settled: keep none of them
         return positions, normals, colors, 0, int(evaluations.numpy().sum())
-    _, n_moved = scan(moved)
-    return (*new, n_moved, int(evaluations.numpy().sum()))
+    out = (positions, normals, colors) if in_place else tuple(wp.clone(a) for a in (positions, normals, colors))
+    committed = wp.empty(n_corners, dtype=wp.int32, device=device)
+    launch(commit_kernel, n_corners, [corner_vertex, moved, *new], [*out, committed], device, threads,
+           min_chunk=LIGHT_CHUNK)  # fmt: skip
+    _, n_moved = scan(committed)
+    return (*out, n_moved, int(evaluations.numpy().sum()))
