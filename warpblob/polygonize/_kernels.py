@@ -262,7 +262,8 @@ def count_kernel(
         b0 = config & 1
         mask = (((config >> 1) & 1) ^ b0) | ((((config >> 2) & 1) ^ b0) << 1) | ((((config >> 4) & 1) ^ b0) << 2)
         bits = int(0)
-        for f in range(6):
+        # corners of one sign (most cells): no face to decide, no loop (entry 0 or 255 * 64)
+        for f in range(wp.where(config == 0 or config == 255, 0, 6)):
             q = faces[f]
             v0 = vals[q[0]]
             v1 = vals[q[1]]
@@ -403,17 +404,27 @@ def face_kernel(
                 for s in range(3):
                     if apex < 0 and (apexes >> s) & 1 != 0:
                         apex = s
-            for s in range(wp.where(n == 3, 0, n)):
-                if (apexes >> s) & 1 != 0:
+            # a loop of four has two fans, not four: apexes s and s + 2 make the same two triangles
+            # (the same cosines, bit for bit), so each pair is tried once, from its first allowed apex
+            quad = n == 4
+            for s in range(wp.where(n == 3, 0, wp.where(quad, 2, n))):
+                allowed = (apexes >> s) & 1
+                first_apex = s
+                if quad and allowed == 0:
+                    allowed = (apexes >> (s + 2)) & 1
+                    first_apex = s + 2
+                if allowed != 0:
                     worst = float(-2.0)
                     for t in range(1, n - 1):
                         c = smallest_angle_cosine(
-                            positions[ids[s]], positions[ids[(s + t) % n]], positions[ids[(s + t + 1) % n]]
-                        )
+                            positions[ids[first_apex]], positions[ids[(first_apex + t) % n]],
+                            positions[ids[(first_apex + t + 1) % n]],
+                        )  # fmt: skip
                         worst = wp.max(worst, c)
-                    if worst < best or apex < 0:
+                    # the smallest largest-cosine; a tie goes to the lower apex, as in ascending order
+                    if worst < best or apex < 0 or (worst == best and first_apex < apex):
                         best = worst
-                        apex = s
+                        apex = first_apex
             for t in range(1, n - 1):
                 triangles[out] = wp.vec3i(ids[apex], ids[(apex + t) % n], ids[(apex + t + 1) % n])
                 out += 1
