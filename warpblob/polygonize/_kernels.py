@@ -644,12 +644,14 @@ def make_sample_kernels(value_only, block_value) -> dict:
     ):
         """The same samples as ``sample_blocks_kernel``, one thread per block:
         the tree is walked once for the block's 512 vertices (array mode), so
-        its traversal cost is shared instead of paid per point."""
+        its traversal cost is shared instead of paid per point; ``evaluated``
+        holds one count per block (the points it sampled)."""
         t = wp.tid() + offset
         a = first_block + t
         c = block_coords(g, active[a])
         ctx = block_rows(rows, t, result_slot, g.origin, g.h, wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK))
         want = ctx.base + (result_slot + 1) * _CELLS
+        count = int(0)
         for l in range(_CELLS):
             lc = local_cell(l)
             need = wp.vec2i(1, 0)
@@ -657,7 +659,8 @@ def make_sample_kernels(value_only, block_value) -> dict:
                 need = vertex_need(g, wp.vec3i(ctx.corner[0] + lc[0], ctx.corner[1] + lc[1], ctx.corner[2] + lc[2]), block_map, block_states, states)
             rows[want + l] = float(need[0])
             samples[a * _CELLS + l] = wp.where(need[1] == 1, iso + 0.5, iso - 0.5)
-            evaluated[a * _CELLS + l] = need[0]
+            count += need[0]
+        evaluated[a] = count
         r = block_value(m, ctx)
         for l in range(_CELLS):
             if rows[want + l] != 0.0:

@@ -297,7 +297,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     n_cells = n_active * _kernels.CELLS
     if 4 * n_cells > np.iinfo(np.int32).max:  # crossed edges are coded as 4 * cell + axis
         raise ResourceError(f"polygonize: {n_active} blocks hold surface, over the int32 index range; use a larger cellsize")
-    check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 7, limit)
+    check_memory("polygonize", "sampling", n_samples * 4 + n_cells * 4 * 6, limit)
     n_subs = n_active * _kernels.SUB_SIDE**3
     dense = _dense_sampling(lm.node_count, _use_rows(dev))
     if dense:
@@ -318,7 +318,8 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         launch(kernels["classify_sub"], n_subs, [m, g, float(iso), active], [states], dev, threads)
     lap("classify_subblocks")
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
-    evaluated = wp.empty(n_samples, dtype=wp.int32, device=dev)
+    # samples taken: one count per block in array mode, a 0 or 1 per vertex in point mode
+    evaluated = wp.empty(n_active if _use_rows(dev) else n_samples, dtype=wp.int32, device=dev)
     if _use_rows(dev):
         # one thread per block walks the tree once for its 512 vertices
         check_memory("polygonize", "block sampling", block_chunk(lm, n_active)[1], limit)
@@ -416,7 +417,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         lap("relax")
 
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
-    grid_evaluations = int(evaluated.numpy().sum()) if n_samples else 0
+    grid_evaluations = int(evaluated.numpy().sum(dtype=np.int64)) if n_samples else 0
     interval_evaluations = n_blocks + (0 if dense else n_subs)
     field_evaluations = grid_evaluations + root_steps + relax_steps
     stats.update(
