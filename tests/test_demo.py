@@ -132,3 +132,18 @@ def test_quick_demo_runs_the_whole_pipeline_into_one_animated_stage(tmp_path):
             assert len(UsdGeom.TetMesh.FindInvertedElements(tet, Usd.TimeCode(code))) == 0
             assert all(_edges_closed(f) for f in _visible_pieces(stage, base, Usd.TimeCode(code)).values())
     assert validation_errors(tmp_path / "warpblob_demo.usdc") == []
+
+
+def test_summary_explains_a_volume_outside_three_standard_errors():
+    """A model whose mesh volume misses the Monte Carlo estimate by more than 3 s.e. gets a line saying why."""
+    from warpblob.cli import _summary_lines
+
+    def row(volume, estimate, error):
+        return {"primitives": 1, "operators": 0, "depth": 1, "points_per_second": 1e6,
+                "polygonize": {"cellsize": 0.1, "seconds": 0.1, "triangles": 10, "shells": 1,
+                               "closed_manifold": True, "volume": volume},
+                "volume_monte_carlo": {"volume": estimate, "standard_error": error}}  # fmt: skip
+
+    lines = _summary_lines({"fine": row(1.0, 1.01, 0.01), "thin": row(1.1, 1.0, 0.01)}, 1000)
+    notes = [line for line in lines if "volume is" in line]
+    assert len(notes) == 1 and notes[0].startswith("thin:") and "+10.0%" in notes[0] and "0.1" in notes[0]
