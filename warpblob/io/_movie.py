@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -198,6 +199,15 @@ def render_frames(stage_path, out_dir, *, frames: int | None = 60, window_size=(
     fps = stage.GetTimeCodesPerSecond()
     paths = []
     show = progress if progress is not None else len(codes) > 10
+
+    def write(image, path):
+        tmp = path.with_name(path.name + ".tmp.png")
+        iio.imwrite(tmp, image)
+        os.replace(tmp, path)
+
+    # the PNGs are encoded on a second thread (zlib lets go of the GIL) while the next frame renders
+    writer = ThreadPoolExecutor(max_workers=1)
+    pending = []
     try:
         actors = []
         for code in bar(codes, desc="render", total=len(codes)) if show else codes:
@@ -212,12 +222,13 @@ def render_frames(stage_path, out_dir, *, frames: int | None = 60, window_size=(
             plotter.render()
             image = plotter.screenshot(return_img=True)
             path = out / f"{prefix}_{round(code):05d}.png"
-            tmp = path.with_name(path.name + ".tmp.png")
-            iio.imwrite(tmp, image)
-            os.replace(tmp, path)
+            pending.append(writer.submit(write, image, path))
             paths.append(path)
     finally:
         plotter.close()
+        writer.shutdown(wait=True)
+    for job in pending:
+        job.result()  # a failed write raises here
     return paths
 
 
