@@ -242,7 +242,8 @@ def _summary_lines(summary: dict, samples: int) -> list[str]:
         if mc["standard_error"] and abs(poly["volume"] - mc["volume"]) > 3.0 * mc["standard_error"] and mc["volume"]:
             lines.append(
                 f"{name}: the mesh's volume is {100.0 * (poly['volume'] / mc['volume'] - 1.0):+.1f}% off at cellsize "
-                f"{poly['cellsize']}: the model has features thinner than the cells (a finer --cellsize resolves them)"
+                f"{poly['cellsize']}, more than 3 s.e.: the usual cause is features thinner than the cells "
+                "(a finer --cellsize resolves them)"
             )
     lines += [
         "shells: connected components of the mesh (a solid with k cavities has k + 1).",
