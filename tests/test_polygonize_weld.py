@@ -306,3 +306,32 @@ def test_vertex_valence_counts_every_triangle_at_a_vertex(device):
     tris = wp.array(faces, dtype=wp.vec3i, device=device)
     valence = _weld.vertex_valence(tris, mesh.vertex_count, device).numpy()
     np.testing.assert_array_equal(valence, np.bincount(faces.reshape(-1), minlength=mesh.vertex_count))
+
+
+def test_the_weld_leaves_its_inputs_alone_unless_told_and_gives_the_same_mesh_in_place(device):
+    """Many clusters welded at once: by default the four input arrays keep their contents; ``in_place``
+    edits them and returns views of them holding the same mesh as the copy."""
+    rng = np.random.default_rng(7)
+    v, f = sphere(3)
+    sv, sf = v, f
+    for a in rng.permutation(len(v))[:30]:
+        ring = link(sf, a)
+        j = 2 + int(rng.integers(0, len(ring) - 3))
+        sv, sf = split(sv, sf, a, tangent(v, a, 0.5 * LIMIT), 0, j)
+    data = [np.asarray(x, np.float32) for x in (sv, sv, 0.5 * sv)]
+
+    def arrays():
+        return (wp.array(np.asarray(sf, np.int32), dtype=wp.vec3i, device=device),
+                *[wp.array(x, dtype=wp.vec3, device=device) for x in data])  # fmt: skip
+
+    given = arrays()
+    copy = _weld.weld(*given, H, device)
+    np.testing.assert_array_equal(given[0].numpy(), np.asarray(sf, np.int32))
+    for arr, x in zip(given[1:], data):
+        np.testing.assert_array_equal(arr.numpy(), x)
+    edited = arrays()
+    inplace = _weld.weld(*edited, H, device, in_place=True)
+    assert copy[4] == inplace[4] == len(sv) - len(v)
+    for a, b in zip(copy[:4], inplace[:4]):
+        np.testing.assert_array_equal(a.numpy(), b.numpy())
+    assert inplace[1].ptr == edited[1].ptr  # a view of the array given, not a copy

@@ -411,8 +411,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     relax_steps = relaxed = 0
     if relax and n_kept:
         positions, normals, colors, relaxed, relax_steps = _relax.relax(
-            kernels["relax"], m, triangles, positions, normals, colors, iso, tolerance, g.h, limit, dev, threads,
-            in_place=True,
+            kernels["relax"], m, triangles, positions, normals, colors, iso, tolerance, g.h, limit, dev, threads
         )
         lap("relax")
 

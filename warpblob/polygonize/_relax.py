@@ -243,15 +243,15 @@ def commit_kernel(
 
 def relax(
     relax_kernel, m, triangles, positions, normals, colors, iso: float, tolerance: float, h: float, limit: int, device,
-    threads=None, *, in_place: bool = False,
+    threads=None,
 ):  # fmt: skip
     """Tangential relaxation of the vertices of skinny triangles (see
     :func:`~warpblob.polygonize.polygonize`'s ``relax``) with the kernel of
-    :func:`make_relax_kernel` over model arrays ``m``. Returns (positions,
-    normals, colors) (V,) vec3 arrays, the number of vertices that moved and
-    the field evaluations it took; ``h`` (model units) bounds a move, ``limit``
-    the bytes it may allocate. With ``in_place`` the moves are written into
-    the arrays given (the pipeline's own), else into copies.
+    :func:`make_relax_kernel` over model arrays ``m``. The moves are written
+    into the (V,) vec3 ``positions``, ``normals`` and ``colors`` given (the
+    pipeline's own arrays); returns them, the number of vertices that moved
+    and the field evaluations it took; ``h`` (model units) bounds a move,
+    ``limit`` the bytes it may allocate.
 
     The corners at flagged vertices are listed as (vertex, triangle) pairs,
     sorted by vertex (``wp.utils.radix_sort_pairs``, stable), so each vertex
@@ -304,9 +304,8 @@ def relax(
         launch(revert_kernel, n_vertices, [revert], [moved], device, threads, min_chunk=LIGHT_CHUNK)
     else:  # pragma: no cover - the moves never settled: keep none of them
         return positions, normals, colors, 0, int(evaluations.numpy().sum())
-    out = (positions, normals, colors) if in_place else tuple(wp.clone(a) for a in (positions, normals, colors))
     committed = wp.empty(n_corners, dtype=wp.int32, device=device)
-    launch(commit_kernel, n_corners, [corner_vertex, moved, *new], [*out, committed], device, threads,
-           min_chunk=LIGHT_CHUNK)  # fmt: skip
+    launch(commit_kernel, n_corners, [corner_vertex, moved, *new], [positions, normals, colors, committed], device,
+           threads, min_chunk=LIGHT_CHUNK)  # fmt: skip
     _, n_moved = scan(committed)
-    return (*out, n_moved, int(evaluations.numpy().sum()))
+    return positions, normals, colors, n_moved, int(evaluations.numpy().sum())
