@@ -228,6 +228,7 @@ def _summary_lines(summary: dict, samples: int) -> list[str]:
         f"{'model':<12}{'prims':>6}{'ops':>6}{'depth':>6}{'Mpts/s':>8}{'tris':>9}{'mesh s':>8}{'shells':>7}"
         f"{'closed':>8}{'mesh volume':>13}{'MC volume':>11}{'+- s.e.':>9}{'off/s.e.':>9}"
     ]
+    notes = []
     for name, info in summary.items():
         poly, mc = info["polygonize"], info["volume_monte_carlo"]
         off = (poly["volume"] - mc["volume"]) / mc["standard_error"] if mc["standard_error"] else float("nan")
@@ -237,14 +238,13 @@ def _summary_lines(summary: dict, samples: int) -> list[str]:
             f"{str(poly['closed_manifold']):>8}{poly['volume']:>13.4f}{mc['volume']:>11.4f}{mc['standard_error']:>9.4f}"
             f"{off:>+9.1f}"
         )
-    for name, info in summary.items():
-        poly, mc = info["polygonize"], info["volume_monte_carlo"]
-        if mc["standard_error"] and abs(poly["volume"] - mc["volume"]) > 3.0 * mc["standard_error"] and mc["volume"]:
-            lines.append(
+        if abs(off) > 3.0 and mc["volume"]:
+            notes.append(
                 f"{name}: the mesh's volume is {100.0 * (poly['volume'] / mc['volume'] - 1.0):+.1f}% off at cellsize "
                 f"{poly['cellsize']}, more than 3 s.e.: the usual cause is features thinner than the cells "
                 "(a finer --cellsize resolves them)"
             )
+    lines += notes
     lines += [
         "shells: connected components of the mesh (a solid with k cavities has k + 1).",
         "closed: every edge in two faces, once each way, and one closed fan of faces around every vertex.",

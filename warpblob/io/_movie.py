@@ -12,9 +12,10 @@ once from the box of every frame, so the pictures do not jump.
 
 from __future__ import annotations
 
+import concurrent.futures
+import functools
 import os
 import pathlib
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -177,6 +178,7 @@ def render_frames(stage_path, out_dir, *, frames: int | None = 60, window_size=(
     import vtk
     from pxr import Usd
 
+    from .._parallel import submit
     from .._progress import progress as bar
 
     stage = _open(stage_path, "render_frames")
@@ -205,8 +207,7 @@ def render_frames(stage_path, out_dir, *, frames: int | None = 60, window_size=(
         iio.imwrite(tmp, image)
         os.replace(tmp, path)
 
-    # the PNGs are encoded on a second thread (zlib lets go of the GIL) while the next frame renders
-    writer = ThreadPoolExecutor(max_workers=1)
+    # the PNGs are encoded on a pool thread (zlib lets go of the GIL) while the next frame renders
     pending = []
     try:
         actors = []
@@ -222,11 +223,11 @@ def render_frames(stage_path, out_dir, *, frames: int | None = 60, window_size=(
             plotter.render()
             image = plotter.screenshot(return_img=True)
             path = out / f"{prefix}_{round(code):05d}.png"
-            pending.append(writer.submit(write, image, path))
+            pending += submit(functools.partial(write, image, path), 1)
             paths.append(path)
     finally:
         plotter.close()
-        writer.shutdown(wait=True)
+        concurrent.futures.wait(pending)
     for job in pending:
         job.result()  # a failed write raises here
     return paths

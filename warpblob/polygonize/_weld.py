@@ -18,6 +18,8 @@ kernels.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -123,24 +125,20 @@ def scatter_triangles_kernel(
 
 @wp.kernel(enable_backward=False)
 def move_kernel(
-    src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32), offset: int, out: wp.array(dtype=wp.vec3i)
-):
-    """``out[dst[i]] = out[src[i]]`` (sources and destinations disjoint)."""
-    tid = wp.tid() + offset
-    out[dst[tid]] = out[src[tid]]
-
-
-@wp.kernel(enable_backward=False)
-def move_from_kernel(
     src: wp.array(dtype=wp.int32),
     dst: wp.array(dtype=wp.int32),
-    data: wp.array(dtype=wp.vec3),
+    data: wp.array(dtype=Any),
     offset: int,
-    out: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=Any),
 ):
-    """``out[dst[i]] = data[src[i]]``."""
+    """``out[dst[i]] = data[src[i]]`` (``data`` may be ``out``: its sources and destinations are disjoint)."""
     tid = wp.tid() + offset
     out[dst[tid]] = data[src[tid]]
+
+
+# the two uses, compiled with the module (not at a launch on a pool thread)
+wp.overload(move_kernel, {"data": wp.array(dtype=wp.vec3i), "out": wp.array(dtype=wp.vec3i)})
+wp.overload(move_kernel, {"data": wp.array(dtype=wp.vec3), "out": wp.array(dtype=wp.vec3)})
 
 
 @wp.kernel(enable_backward=False)
@@ -214,8 +212,6 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None, 
     corners, alive = contract_patch(local, points, candidate, counts, WELD * h)
     if np.all(alive):
         return triangles, positions, normals, colors, 0
-    # a triangle whose corners are no longer distinct goes too (the contraction leaves none alive)
-    alive &= (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2]) & (corners[:, 0] != corners[:, 2])
     # a vertex goes when no triangle is left at it: none outside the patch, none alive in it
     outside = counts - np.bincount(local.reshape(-1), minlength=len(vertices))
     referenced = np.bincount(corners[alive].reshape(-1), minlength=len(vertices)) > 0
@@ -233,8 +229,8 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None, 
         [_ints(patch_ids[live], device), wp.array(vertices[corners[live]].astype(np.int32), dtype=wp.vec3i, device=device)],
         [welded], device, threads, min_chunk=LIGHT_CHUNK,
     )  # fmt: skip
-    launch(move_kernel, len(t_holes), [_ints(t_movers, device), _ints(t_holes, device)], [welded], device, threads,
-           min_chunk=LIGHT_CHUNK)  # fmt: skip
+    launch(move_kernel, len(t_holes), [_ints(t_movers, device), _ints(t_holes, device), welded], [welded], device,
+           threads, min_chunk=LIGHT_CHUNK)  # fmt: skip
     out = []
     movers, holes = _ints(v_movers, device), _ints(v_holes, device)
     for data in (positions, normals, colors):
@@ -243,8 +239,7 @@ def weld(triangles, positions, normals, colors, h: float, device, threads=None, 
         else:
             moved = wp.empty(n_used, dtype=wp.vec3, device=device)
             wp.copy(moved, data, count=n_used)
-        launch(move_from_kernel, len(v_holes), [movers, holes, data], [moved], device, threads,
-               min_chunk=LIGHT_CHUNK)  # fmt: skip
+        launch(move_kernel, len(v_holes), [movers, holes, data], [moved], device, threads, min_chunk=LIGHT_CHUNK)
         out.append(moved[:n_used])
     triangles = welded[:n_kept]
     if len(v_holes):
