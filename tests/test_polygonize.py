@@ -388,3 +388,47 @@ def test_progress_bar_shows_the_stages_on_a_terminal(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "polygonize" in err and "7/7" in err and "relax" in err
     assert mesh.is_closed_manifold()
+
+
+
+def _tape_reference(lm, lo, hi):
+    """Leaves whose boxes meet the closed box [lo, hi] and whose ancestors' boxes all do (a walk prunes a
+    subtree at the first box that misses): an independent count over the linearized arrays."""
+    visited = np.all((lm.lower <= hi) & (lm.upper >= lo), axis=1)
+    for i in range(1, len(lm.kind)):  # pre-order: a parent comes before its children
+        visited[i] &= visited[lm.parent[i]]
+    return int((visited & (lm.kind < wb.tree._kinds.PRIMITIVE_KIND_END)).sum())
+
+
+@pytest.mark.parametrize("sampling", ["rows", "points"])
+def test_stats_give_the_tape_pruned_over_each_block(sampling, monkeypatch):
+    """Per active block, the primitives whose boxes (and their ancestors') meet its cube, the tape its samples
+    walk, against a numpy count over the linearized boxes: counted by the array-mode walk of the samples
+    (``rows``) and by the interval walk used where samples are taken point by point (``points``); a wide
+    blend (grid-listed operands) and a Difference (the subtracted operand's box outside the result's)."""
+    from warpblob.polygonize import _pipeline
+
+    monkeypatch.setattr(_pipeline, "SAMPLING", sampling)
+    rng = np.random.default_rng(7)
+    blobs = [wb.Point(tuple(c), 0.35) for c in rng.uniform(-1.0, 1.0, (24, 3))]
+    model = wb.Union(wb.Difference(wb.Blend(*blobs), wb.Point((0.9, 0.9, 0.9), 0.5)),
+                     wb.Segment((-1.5, 0.0, 0.0), (1.5, 0.2, 0.1), 0.2))  # fmt: skip
+    h = 0.05
+    s = wb.polygonize(model, cellsize=h, relax=False, device="cpu").stats
+    lm = wb.linearize(model)
+    assert s["tape_leaves"] == lm.primitive_count == 26
+    blocks, leaves = s["block_tapes"]["blocks"], s["block_tapes"]["leaves"]
+    assert len(blocks) == len(leaves) == s["blocks_total"] - s["blocks_rejected"] > 8
+    lo, hi = lm.bounds
+    origin = (lo - 0.5 * h).astype(np.float32).astype(np.float64)
+    dims = np.maximum(np.ceil((hi - lo + h) / h).astype(np.int64), 1) // 8 + 1
+    coords = np.stack([blocks % dims[0], (blocks // dims[0]) % dims[1], blocks // (dims[0] * dims[1])], axis=1)
+    expected = []
+    for c in coords:
+        a, z = origin + h * 8 * c, origin + h * (8 * c + 7)
+        centre, half = 0.5 * (a + z), 0.5 * float(np.max(z - a)) * 1.0001
+        expected.append(_tape_reference(lm, centre - half, centre + half))
+    np.testing.assert_array_equal(leaves, expected)
+    assert len(np.unique(leaves)) > 3  # blocks prune differently
+    assert s["block_tape_mean"] == pytest.approx(np.mean(expected))
+    assert s["block_tape_max"] == max(expected) < lm.primitive_count

@@ -1255,7 +1255,7 @@ def make_fold(interval: bool, array: bool):
 
 def make_evaluate(
     prune: bool, interval: bool = False, derivatives: bool = True, array: bool = False, cube: bool = False,
-    _core: bool = False,
+    count: bool = False, _core: bool = False,
 ):  # fmt: skip
     """The traversal as a Warp function ``evaluate(m, p, radius) -> vec7``.
 
@@ -1269,10 +1269,18 @@ def make_evaluate(
     the bounds hold over the cube (:func:`interval_primitive`'s cube bound, as
     the bounds rows of array mode compute them).
 
+    With ``count`` (interval and array modes) the result's last component
+    (``r[7]``, otherwise 0) is the number of leaves the walk reached:
+    primitives, and warps taken whole, whose boxes meet the ball, cube or
+    block (and their ancestors' boxes too), the tape pruned over it. The
+    count rides in a register row of its own (``sn``).
+
     The walk below is one generated body; what differs between the modes
     lives in the pieces it calls: :func:`make_leaf`, :func:`make_fold`,
     :func:`make_get_slot`, :func:`make_walks_grid`, :func:`make_flat_operator`.
     """
+    if count and not (interval or array):
+        raise ValueError("make_evaluate: count needs interval or array mode")
     use_grid = prune
     # array mode walks the tree once per block, pruning like interval mode over
     # the block's cube; warps inside it are evaluated point by point. With
@@ -1293,6 +1301,7 @@ def make_evaluate(
         sh = vec_slots()
         sg = mat_slots3()
         sc = mat_slots3()
+        sn = vec_slots()  # leaves reached, per register (``count``)
         cursor = ivec_slots()
         stop = ivec_slots()
         saved = mat_warps3()
@@ -1317,11 +1326,15 @@ def make_evaluate(
                     descending = False
                 elif kind < K_PRIM_END:
                     r = leaf(m, i, kind, q, radius, ctx)
+                    if wp.static(count):
+                        r[7] = 1.0
                     descending = False
                 elif kind >= K_TWIST:
                     if wp.static(spatial):
                         # interval and array modes take a warp's subtree as one leaf
                         r = leaf(m, i, kind, q, radius, ctx)
+                        if wp.static(count):
+                            r[7] = 1.0
                         descending = False
                     else:
                         wsp += 1
@@ -1349,6 +1362,8 @@ def make_evaluate(
                         sv[sp] = 0.0
                         if wp.static(ball):
                             sh[sp] = 0.0
+                        if wp.static(count):
+                            sn[sp] = 0.0
                         if wp.static(array):
                             if wp.static(bounds):
                                 clear_bounds(ctx, sp)
@@ -1389,6 +1404,11 @@ def make_evaluate(
                     first = i == par + 1 and not wide
                     if first:
                         sp += 1
+                    if wp.static(count):
+                        if first:
+                            sn[sp] = r[7]
+                        else:
+                            sn[sp] = sn[sp] + r[7]
                     acc = fold(pk, prm[0], get_slot(sv, sh, sg, sc, sp), r, first, ctx, sp)
                     sv[sp] = acc[0]
                     if wp.static(ball):
@@ -1429,6 +1449,8 @@ def make_evaluate(
                         descending = True
                     else:
                         r = finish(pk, prm[0], acc, ctx, sp)
+                        if wp.static(count):
+                            r[7] = sn[sp]
                         sp -= 1
                         i = par
         return r

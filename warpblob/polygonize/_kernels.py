@@ -641,11 +641,13 @@ def make_sample_kernels(value_only, block_value) -> dict:
         offset: int,
         samples: wp.array(dtype=wp.float32),
         evaluated: wp.array(dtype=wp.int32),
+        tape: wp.array(dtype=wp.int32),
     ):
         """The same samples as ``sample_blocks_kernel``, one thread per block:
         the tree is walked once for the block's 512 vertices (array mode), so
         its traversal cost is shared instead of paid per point; ``evaluated``
-        holds one count per block (the points it sampled)."""
+        holds one count per block (the points it sampled), ``tape`` the leaves
+        its walk reached (the tape pruned over the block)."""
         t = wp.tid() + offset
         a = first_block + t
         c = block_coords(g, active[a])
@@ -662,6 +664,7 @@ def make_sample_kernels(value_only, block_value) -> dict:
             count += need[0]
         evaluated[a] = count
         r = block_value(m, ctx)
+        tape[a] = int(r[7])
         for l in range(_CELLS):
             if rows[want + l] != 0.0:
                 samples[a * _CELLS + l] = block_result(ctx, r, l)
@@ -771,6 +774,29 @@ def make_vertex_kernels(value, project) -> dict:
     return {"edge_vertex": edge_vertex_kernel, "centre": centre_kernel}
 
 
+def make_tape_kernel(counted) -> dict:
+    """The per-block tape lengths of ``stats`` where the samples are taken
+    point by point (on a GPU): ``counted`` is the interval traversal over a
+    cube that counts the leaves it reaches (:func:`make_evaluate` with
+    ``count``); on the CPU the array-mode walk of the samples counts them."""
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def block_tape_kernel(m: ModelArrays, g: Grid, active: wp.array(dtype=wp.int32), offset: int,
+                          tape: wp.array(dtype=wp.int32)):  # fmt: skip
+        """Leaves of the tape pruned over active block ``tid``'s cube: the cube
+        an array-mode walk of its samples prunes by (the one
+        :func:`~warpblob.field._kernels.block_center` gives), by the same boxes
+        and grid cells."""
+        tid = wp.tid() + offset
+        c = block_coords(g, active[tid])
+        lo = vertex_position(g, c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK)
+        hi = vertex_position(g, c[0] * _BLOCK + _BLOCK - 1, c[1] * _BLOCK + _BLOCK - 1, c[2] * _BLOCK + _BLOCK - 1)
+        half = 0.5 * wp.max(wp.max(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
+        tape[tid] = int(counted(m, 0.5 * (lo + hi), half * 1.0001)[7])
+
+    return {"tape": block_tape_kernel}
+
+
 def make_kernels() -> dict:
     """Build the polygonizer kernels that close over the field evaluators
     (compiled once per process and device), by name; relaxation's is
@@ -778,8 +804,11 @@ def make_kernels() -> dict:
     value = make_evaluate(True)
     return {
         **make_classify_kernels(make_evaluate(True, interval=True, cube=True), make_evaluate(True, interval=True, array=True)),
-        **make_sample_kernels(make_evaluate(True, derivatives=False), make_evaluate(True, derivatives=False, array=True)),
+        **make_sample_kernels(
+            make_evaluate(True, derivatives=False), make_evaluate(True, derivatives=False, array=True, count=True)
+        ),
         **make_vertex_kernels(value, make_project(value)),
+        **make_tape_kernel(make_evaluate(True, interval=True, cube=True, count=True)),
     }
 
 

@@ -320,17 +320,21 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     samples = wp.empty(n_samples, dtype=wp.float32, device=dev)
     # samples taken: one count per block in array mode, a 0 or 1 per vertex in point mode
     evaluated = wp.empty(n_active if _use_rows(dev) else n_samples, dtype=wp.int32, device=dev)
+    # per active block, the leaves of the tape pruned over it (stats): counted by the array-mode walk, or by
+    # an interval walk over the block's cube where the samples are taken point by point
+    tape = wp.empty(n_active, dtype=wp.int32, device=dev)
     if _use_rows(dev):
         # one thread per block walks the tree once for its 512 vertices
         check_memory("polygonize", "block sampling", block_chunk(lm, n_active)[1], limit)
         inputs = [m, g, float(iso), active, block_map, block_states, states, int(dense)]
         launch_blocks(
-            kernels["sample_rows"], n_active, inputs, [samples, evaluated], lm, dev, threads,
+            kernels["sample_rows"], n_active, inputs, [samples, evaluated, tape], lm, dev, threads,
             min_chunk=_kernels.BLOCK_CHUNK,
         )  # fmt: skip
     else:
         inputs = [m, g, float(iso), active, block_map, block_states, states, int(dense)]
         launch(kernels["sample"], n_samples, inputs, [samples, evaluated], dev, threads)
+        launch(kernels["tape"], n_active, [m, g, active], [tape], dev, threads, min_chunk=_kernels.HEAVY_CHUNK)
     lap("sample")
 
     # 3. crossed edges, cell configurations, counts and prefix sums
@@ -418,6 +422,7 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
     root_steps = int(evaluations.numpy().sum()) if n_vertices else 0
     grid_evaluations = int(evaluated.numpy().sum(dtype=np.int64)) if n_samples else 0
     interval_evaluations = n_blocks + (0 if dense else n_subs)
+    tape_np = tape.numpy() if n_active else np.zeros(0, np.int32)
     field_evaluations = grid_evaluations + root_steps + relax_steps
     stats.update(
         vertices=positions.shape[0],  # after welding
@@ -434,6 +439,10 @@ def _run(lm, g, n_blocks, blocks, dev, iso, tolerance, limit, threads, clock, st
         interval_evaluations=interval_evaluations,
         fvept=field_evaluations / max(n_kept, 1),
         fvept_with_intervals=(field_evaluations + interval_evaluations) / max(n_kept, 1),
+        tape_leaves=int(lm.primitive_count),
+        block_tape_mean=float(tape_np.mean()) if n_active else 0.0,
+        block_tape_max=int(tape_np.max()) if n_active else 0,
+        block_tapes={"blocks": active.numpy().astype(np.int32), "leaves": tape_np},
         seconds=clock.seconds,
         total_seconds=sum(clock.seconds.values()),
     )

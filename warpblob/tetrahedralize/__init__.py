@@ -22,7 +22,10 @@ size the next allocation):
    may hold surface; a stand-in value on the proven side elsewhere. Labels:
    ``+`` (``F > 0.5``), ``-`` (``F < 0.5``), ``0`` (``F = 0.5``).
 3. **Cut points.** On every lattice edge with a ``+`` and a ``-`` end, a root
-   found by the bracketed Newton-Hermite search on the edge to ``|F - 0.5| <= 1e-4``.
+   found by the bracketed Newton-Hermite search on the edge to ``|F - 0.5| <= 1e-4``,
+   each step first trying the falloff-space quadratic (exact for one Wyvill
+   primitive along the edge), as the polygonizer does: towers at h = 0.1 take
+   2.01M root evaluations instead of 2.35M, the head 241K instead of 271K.
    Each edge is owned by one lattice point; per-point bit masks and a prefix
    sum give each cut point its unique index (no hashing, no duplicates).
 4. **Warping.** A cut point *violates* a lattice point when it lies on one of

@@ -130,7 +130,7 @@ def make_kernels():
     """Build the kernels that evaluate the field (compiled once per process and device)."""
     bound = make_evaluate(True, interval=True, cube=True)
     value = make_evaluate(True)
-    segment_root = make_segment_root(value)
+    segment_root = make_segment_root(value, falloff_space=True)
 
     @wp.func
     def box_state(m: ModelArrays, l: Lattice, iso: float, first: wp.vec3i, side: int):
@@ -235,8 +235,8 @@ def make_kernels():
         evaluations: wp.array(dtype=wp.int32),
     ):
         """A cut point on every crossed edge owned by point ``p``: the shared
-        safeguarded Newton search (:func:`~warpblob.field._kernels.make_segment_root`)
-        until ``|F - iso| <= tolerance``."""
+        safeguarded Newton search (:func:`~warpblob.field._kernels.make_segment_root`, in falloff
+        space first) until ``|F - iso| <= tolerance``."""
         p = wp.tid() + offset
         mask = masks[p]
         if mask == 0:
