@@ -618,3 +618,25 @@ def test_stage_seconds_cover_the_call():
     # spares, against tens of milliseconds for the materials or the mesh construction (the best of
     # three calls, so a loaded machine does not fail it)
     assert min(left_out) < 5e-3, left_out
+
+
+@pytest.mark.parametrize("case", ["tumor", "twisted"])
+def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
+    """The CPU samples the lattice in array mode (one tree walk per block of 8^3 points of a colour), a GPU
+    point by point: the same points sampled, the field the same up to the order of sums, the same tets."""
+    from warpblob.tetrahedralize import _stuffing
+
+    if case == "tumor":
+        model, h = wb.scenes.tumor(), 0.08
+    else:  # a warp inside the walk (evaluated point by point within the block), a Difference
+        arms = wb.Union(*[wb.Segment((0, 0, -1), (0.5 * np.cos(a), 0.5 * np.sin(a), 1), 0.35) for a in (0.0, 2.1, 4.2)])
+        model, h = wb.Twist(arms - wb.Point((0, 0, 0), 0.5), (0, 0, 1), 1.5), 0.07
+    meshes = {}
+    for mode in ("points", "rows"):
+        monkeypatch.setattr(_stuffing, "SAMPLING", mode)
+        meshes[mode] = tetrahedralize(model, cellsize=h, device="cpu")
+    a, b = meshes["points"], meshes["rows"]
+    assert a.stats["lattice_evaluations"] == b.stats["lattice_evaluations"] > 1000
+    np.testing.assert_array_equal(a.tets, b.tets)
+    assert np.abs(a.nodes - b.nodes).max() < 1e-4 * h
+    assert (b.volumes() > 0).all()

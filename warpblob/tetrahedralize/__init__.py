@@ -20,7 +20,14 @@ size the next allocation):
    tets without a single field evaluation).
 2. **Sampling.** ``F`` at the lattice points used by a tet of a sub-block that
    may hold surface; a stand-in value on the proven side elsewhere. Labels:
-   ``+`` (``F > 0.5``), ``-`` (``F < 0.5``), ``0`` (``F = 0.5``).
+   ``+`` (``F > 0.5``), ``-`` (``F < 0.5``), ``0`` (``F = 0.5``). On the CPU
+   each colour's points are taken in blocks of 8^3, one array-mode tree walk
+   per block that needs any (the tape pruned over the block, as the
+   polygonizer samples; see ``docs/field_engine.md``); on a GPU point by
+   point. The same points are sampled and the values agree up to the order
+   of sums (a test checks the same tets). Sampling took 35 ms instead of
+   73 ms on medusa at h = 0.05, 39 instead of 96 on towers at 0.1, 21
+   instead of 55 on the head at 0.1 (2 cores, warm).
 3. **Cut points.** On every lattice edge with a ``+`` and a ``-`` end, a root
    found by the bracketed Newton-Hermite search on the edge to ``|F - 0.5| <= 1e-4``,
    each step first trying the falloff-space quadratic (exact for one Wyvill

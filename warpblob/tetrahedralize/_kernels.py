@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..field._kernels import ModelArrays, make_evaluate, make_segment_root
+from ..field._kernels import BLOCK_POINTS, ModelArrays, block_result, block_rows, make_evaluate, make_segment_root
 from ._tables import MAX_STENCIL
 
 BLOCK = 8  # cubes per side of a coarse block (first interval test)
@@ -28,6 +28,7 @@ _SUB = wp.constant(SUB)
 _SUB_CELLS = wp.constant(SUB_CELLS)
 _TETS_PER_CELL = wp.constant(TETS_PER_CELL)
 _MAX_STENCIL = wp.constant(MAX_STENCIL)
+_BLOCK_POINTS = wp.constant(BLOCK_POINTS)
 _SHORT = wp.constant(0.8660254037844386)  # short edge / long edge = sqrt(3) / 2
 _HALF_SIDE = wp.constant(0.5 * 1.0001)  # half side / box side, with margin
 
@@ -82,9 +83,16 @@ def point_coords(l: Lattice, p: int):
 
 
 @wp.func
+def colour_origin(l: Lattice, red: int):
+    """Position of point (0, 0, 0) of the black (red = 0) or red points."""
+    return l.origin + l.h * wp.vec3(0.5 * float(red))
+
+
+@wp.func
 def point_position(l: Lattice, q: wp.vec4i):
-    s = 0.5 * float(q[0])
-    return l.origin + l.h * wp.vec3(float(q[1]) + s, float(q[2]) + s, float(q[3]) + s)
+    """Position of point ``q`` (red, i, j, k): its colour's origin plus ``h (i, j, k)``, as an array-mode
+    walk over that colour's points computes it (bit for bit)."""
+    return colour_origin(l, q[0]) + l.h * wp.vec3(float(q[1]), float(q[2]), float(q[3]))
 
 
 @wp.func
@@ -126,10 +134,40 @@ def label_of(value: float, iso: float):
     return 0
 
 
+@wp.func
+def point_need(l: Lattice, sub_states: wp.array(dtype=wp.int32), q: wp.vec4i):
+    """(needed, proven inside) of point ``q``: whether a tet of a mixed sub-block uses it, and else
+    whether the sub-blocks around it are proven inside (all tets using the point agree on the side)."""
+    c = wp.vec3i(q[1], q[2], q[3])
+    needed = int(0)
+    proven = int(0)
+    if q[0] == 0:
+        # a cube corner is used by tets owned by the 8 cubes around it
+        for d in range(8):
+            st = cell_state(l, sub_states, c - wp.vec3i(d & 1, (d >> 1) & 1, d >> 2))
+            if st == _MIXED:
+                needed = 1
+            elif st == _INSIDE:
+                proven = 1
+    else:
+        # a cube centre is used by its own cube's tets and by those of the cube before it on each axis
+        for d in range(4):
+            back = wp.vec3i(0)
+            if d > 0:
+                back[d - 1] = 1
+            st = cell_state(l, sub_states, c - back)
+            if st == _MIXED:
+                needed = 1
+            elif st == _INSIDE:
+                proven = 1
+    return wp.vec2i(needed, proven)
+
+
 def make_kernels():
     """Build the kernels that evaluate the field (compiled once per process and device)."""
     bound = make_evaluate(True, interval=True, cube=True)
     value = make_evaluate(True)
+    block_value = make_evaluate(True, derivatives=False, array=True)
     segment_root = make_segment_root(value, falloff_space=True)
 
     @wp.func
@@ -190,34 +228,54 @@ def make_kernels():
         proven side of ``iso`` elsewhere (all tets using the point agree on the side)."""
         p = wp.tid() + offset
         q = point_coords(l, p)
-        c = wp.vec3i(q[1], q[2], q[3])
-        needed = bool(False)
-        proven = _OUTSIDE
-        if q[0] == 0:
-            # a cube corner is used by tets owned by the 8 cubes around it
-            for d in range(8):
-                st = cell_state(l, sub_states, c - wp.vec3i(d & 1, (d >> 1) & 1, d >> 2))
-                if st == _MIXED:
-                    needed = True
-                elif st == _INSIDE:
-                    proven = _INSIDE
-        else:
-            # a cube centre is used by its own cube's tets and by those of the cube before it on each axis
-            for d in range(4):
-                back = wp.vec3i(0)
-                if d > 0:
-                    back[d - 1] = 1
-                st = cell_state(l, sub_states, c - back)
-                if st == _MIXED:
-                    needed = True
-                elif st == _INSIDE:
-                    proven = _INSIDE
-        if needed:
+        need = point_need(l, sub_states, q)
+        if need[0] != 0:
             values[p] = value(m, point_position(l, q), 0.0)[0]
             evaluated[p] = 1
         else:
-            values[p] = wp.where(proven == _INSIDE, iso + 0.5, iso - 0.5)
+            values[p] = wp.where(need[1] != 0, iso + 0.5, iso - 0.5)
             evaluated[p] = 0
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def sample_rows_kernel(
+        m: ModelArrays,
+        l: Lattice,
+        iso: float,
+        sub_states: wp.array(dtype=wp.int32),
+        red: int,
+        point_blocks: wp.vec3i,
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        values: wp.array(dtype=wp.float32),
+        evaluated: wp.array(dtype=wp.int32),
+    ):
+        """The samples of ``sample_points_kernel`` for the points of one colour, one thread per block of
+        8^3 of them (``point_blocks`` per axis): one array-mode tree walk for the block's needed points
+        (the tape pruned over the block), none for a block that needs none."""
+        t = wp.tid() + offset
+        c = grid_coords(point_blocks, first_block + t)
+        corner = wp.vec3i(c[0] * 8, c[1] * 8, c[2] * 8)
+        ctx = block_rows(rows, t, result_slot, colour_origin(l, red), l.h, corner)
+        want = ctx.base + (result_slot + 1) * _BLOCK_POINTS
+        count = int(0)
+        for j in range(_BLOCK_POINTS):
+            q = wp.vec4i(red, corner[0] + j % 8, corner[1] + (j // 8) % 8, corner[2] + j // 64)
+            p = point_index(l, red, wp.vec3i(q[1], q[2], q[3]))
+            rows[want + j] = 0.0
+            if p >= 0:
+                need = point_need(l, sub_states, q)
+                rows[want + j] = float(need[0])
+                values[p] = wp.where(need[1] != 0, iso + 0.5, iso - 0.5)
+                evaluated[p] = need[0]
+                count += need[0]
+        if count > 0:
+            r = block_value(m, ctx)
+            for j in range(_BLOCK_POINTS):
+                if rows[want + j] != 0.0:
+                    p = point_index(l, red, wp.vec3i(corner[0] + j % 8, corner[1] + (j // 8) % 8, corner[2] + j // 64))
+                    values[p] = block_result(ctx, r, j)
 
     @wp.kernel(enable_backward=False, module="unique")
     def cut_edges_kernel(
@@ -262,6 +320,7 @@ def make_kernels():
         "classify_blocks": classify_blocks_kernel,
         "classify_subs": classify_subs_kernel,
         "sample": sample_points_kernel,
+        "sample_rows": sample_rows_kernel,
         "cut": cut_edges_kernel,
     }
 

@@ -23,7 +23,7 @@ from .._linearize import LinearModel, linearize
 from .._parallel import check_threads, launch
 from .._stages import PROGRESS_CELLS, StageClock, available_memory, check_memory, compact, scan
 from ..field import color
-from ..field._engine import model_arrays
+from ..field._engine import block_chunk, launch_blocks, model_arrays
 from ..field._kernels import ModelArrays
 from ..mesh._tetmesh import TetMesh
 from ..tree import ISO_VALUE
@@ -38,6 +38,16 @@ _WHO = "tetrahedralize"
 _ISO = float(ISO_VALUE)
 _TOLERANCE = 1e-4  # largest |F - iso| of a cut point
 _ROOT_ITERATIONS = 32
+#: lattice sampling: "auto" (array mode on the CPU, point by point on a GPU), "rows" or "points" (tests)
+SAMPLING = "auto"
+#: blocks of 8^3 lattice points a CPU thread takes at a time
+_ROW_CHUNK = 16
+
+
+def _use_rows(device) -> bool:
+    if SAMPLING == "auto":
+        return device.is_cpu
+    return SAMPLING == "rows"
 _WARP_ROUNDS = 4  # rounds of warp decisions per host sync (chains of violations are short)
 
 _CACHE: dict = {}
@@ -112,6 +122,7 @@ class _Run:
     model: ModelArrays
     kernels: dict  # the field-evaluating kernels (:func:`_kernels.make_kernels`)
     tables: dict  # the stencil and lattice tables on ``device``
+    linear: LinearModel  # the model ``model`` holds (its register count sizes array-mode scratch)
 
     def launch(self, kernel, dim: int, before: list, after: list) -> None:
         launch(kernel, dim, before, after, self.device, self.threads)
@@ -224,7 +235,19 @@ def _sample(run: _Run, sub_states: wp.array) -> tuple[wp.array, wp.array]:
     """
     values = wp.empty(run.n_points, dtype=wp.float32, device=run.device)
     evaluated = wp.empty(run.n_points, dtype=wp.int32, device=run.device)
-    run.launch(run.kernels["sample"], run.n_points, [run.model, run.lattice, _ISO, sub_states], [values, evaluated])
+    if not _use_rows(run.device):
+        run.launch(run.kernels["sample"], run.n_points, [run.model, run.lattice, _ISO, sub_states], [values, evaluated])
+        return values, evaluated
+    # on the CPU, each colour's points in blocks of 8^3, one array-mode tree walk per block
+    cells = np.array([run.lattice.cells[0], run.lattice.cells[1], run.lattice.cells[2]], dtype=np.int64)
+    for red, dims in ((0, cells + 1), (1, cells)):
+        blocks = -(-dims // 8)
+        n = int(np.prod(blocks))
+        check_memory(_WHO, "lattice sampling", block_chunk(run.linear, n)[1], run.limit)
+        launch_blocks(
+            run.kernels["sample_rows"], n, [run.model, run.lattice, _ISO, sub_states, red, wp.vec3i(*blocks)],
+            [values, evaluated], run.linear, run.device, run.threads, min_chunk=_ROW_CHUNK,
+        )  # fmt: skip
     return values, evaluated
 
 
@@ -617,7 +640,7 @@ def tetrahedralize(
     show = bool(progress) or (progress is None and n_points >= PROGRESS_CELLS)
     clock = StageClock(dev, _WHO, 10 if level_dims else 9, show=show, start=start)
     run = _Run(dev, threads, limit, lat, n_points, n_blocks, n_subs, model_arrays(lm, dev), _kernel_set(),
-               _device_tables(dev))  # fmt: skip
+               _device_tables(dev), lm)  # fmt: skip
     levels = _levels(run, level_dims)
     clock.lap("setup")
     sub_states, bounded, active = _classify(run)
