@@ -10,7 +10,7 @@ import warp as wp
 import warpblob as wb
 from warpblob.mesh import SurfaceMesh
 from warpblob.mesh._tetmesh import TET_FACES
-from warpblob.tetrahedralize import ALPHA_LONG, ALPHA_SHORT, _tables, tetrahedralize
+from warpblob.tetrahedralize import ALPHA_LONG, ALPHA_SHORT, _kernels, _tables, tetrahedralize
 
 PAPER_MIN_DIHEDRAL = 10.7  # degrees, Labelle & Shewchuk 2007, for (ALPHA_LONG, ALPHA_SHORT)
 PAPER_MAX_DIHEDRAL = 164.8
@@ -640,3 +640,31 @@ def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
     np.testing.assert_array_equal(a.tets, b.tets)
     assert np.abs(a.nodes - b.nodes).max() < 1e-4 * h
     assert (b.volumes() > 0).all()
+
+
+@wp.kernel
+def _line_points_kernel(l: _kernels.Lattice, q: wp.vec4i, out: wp.array(dtype=wp.vec3)):
+    slot = wp.tid()
+    before, after = _kernels.line_neighbours(q, slot)
+    out[4 * slot + 0] = _kernels.point_position(l, before)
+    out[4 * slot + 1] = _kernels.point_position(l, q)
+    out[4 * slot + 2] = _kernels.point_position(l, _kernels.edge_end(q, slot))
+    out[4 * slot + 3] = _kernels.point_position(l, after)
+
+
+@pytest.mark.parametrize("red", [0, 1])
+def test_edge_lines_hold_equally_spaced_lattice_points(red):
+    """The four samples a cut point's search starts from lie on the edge's line, one edge apart: the point
+    before the owner, the owner, the edge's other end, the point past it (every slot a colour owns)."""
+    lat = _kernels.Lattice()
+    lat.origin, lat.h = wp.vec3(0.25, -0.5, 1.0), 0.125
+    lat.cells = wp.vec3i(10, 10, 10)
+    lat.black = 11**3
+    out = wp.empty(44, dtype=wp.vec3, device="cpu")
+    wp.launch(_line_points_kernel, dim=11 if red else 3, inputs=[lat, wp.vec4i(red, 4, 5, 6), out], device="cpu")
+    p = out.numpy().reshape(11, 4, 3)[: 11 if red else 3].astype(np.float64)
+    step = p[:, 2] - p[:, 1]
+    np.testing.assert_allclose(p[:, 1] - p[:, 0], step, atol=1e-6)
+    np.testing.assert_allclose(p[:, 3] - p[:, 2], step, atol=1e-6)
+    lengths = np.linalg.norm(step, axis=1) / 0.125
+    np.testing.assert_allclose(lengths, [1.0] * 3 + ([np.sqrt(3) / 2] * 8 if red else []), rtol=1e-6)

@@ -30,9 +30,16 @@ size the next allocation):
    instead of 55 on the head at 0.1 (2 cores, warm).
 3. **Cut points.** On every lattice edge with a ``+`` and a ``-`` end, a root
    found by the bracketed Newton-Hermite search on the edge to ``|F - 0.5| <= 1e-4``,
-   each step first trying the falloff-space quadratic (exact for one Wyvill
-   primitive along the edge), as the polygonizer does: towers at h = 0.1 take
-   2.01M root evaluations instead of 2.35M, the head 241K instead of 271K.
+   as the polygonizer finds its vertices: started at the root of the cubic
+   through the four samples on the edge's line (lattice lines hold equally
+   spaced points; the linear guess where a sample beyond the ends is a
+   stand-in), each step first trying the falloff-space quadratic (exact for
+   one Wyvill primitive along the edge). Root evaluations per cut point, before
+   both -> after: tumor at h = 0.05 1.79 -> 1.01, medusa 0.05 2.36 -> 1.93,
+   head 0.1 2.06 -> 1.99, towers 0.1 2.98 -> 2.52. Only evaluated points can
+   own a crossed edge (every tet at a stand-in lies in a proven sub-block), so
+   the others are not looked at: the stage took 11 ms instead of 32 on tumor,
+   100 instead of 161 on medusa.
    Each edge is owned by one lattice point; per-point bit masks and a prefix
    sum give each cut point its unique index (no hashing, no duplicates).
 4. **Warping.** A cut point *violates* a lattice point when it lies on one of

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..field._kernels import BLOCK_POINTS, ModelArrays, block_result, block_rows, make_evaluate, make_segment_root
+from ..field._kernels import (
+    BLOCK_POINTS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate, make_segment_root,
+)  # fmt: skip
 from ._tables import MAX_STENCIL
 
 BLOCK = 8  # cubes per side of a coarse block (first interval test)
@@ -104,6 +106,37 @@ def edge_end(q: wp.vec4i, slot: int):
         return e
     corner = slot - 3
     return wp.vec4i(0, q[1] + (corner & 1), q[2] + ((corner >> 1) & 1), q[3] + (corner >> 2))
+
+
+@wp.func
+def line_neighbours(q: wp.vec4i, slot: int):
+    """The lattice points one edge before ``q`` and one edge past the other end of its owned edge
+    ``slot``, on the edge's line: lattice lines hold equally spaced points (a long edge's neighbours
+    have its colour; a short edge's line alternates red and black), as (red, i, j, k) each."""
+    if slot < 3:
+        before = wp.vec4i(q[0], q[1], q[2], q[3])
+        after = wp.vec4i(q[0], q[1], q[2], q[3])
+        before[1 + slot] = before[1 + slot] - 1
+        after[1 + slot] = after[1 + slot] + 2
+        return before, after
+    corner = slot - 3
+    dx = corner & 1
+    dy = (corner >> 1) & 1
+    dz = corner >> 2
+    before = wp.vec4i(0, q[1] + 1 - dx, q[2] + 1 - dy, q[3] + 1 - dz)
+    after = wp.vec4i(1, q[1] + 2 * dx - 1, q[2] + 2 * dy - 1, q[3] + 2 * dz - 1)
+    return before, after
+
+
+@wp.func
+def sampled_value(l: Lattice, values: wp.array(dtype=wp.float32), evaluated: wp.array(dtype=wp.int32), q: wp.vec4i):
+    """(F at point ``q``, 1) where it was evaluated; (0, 0) for a stand-in or a point outside the lattice."""
+    p = point_index(l, q[0], wp.vec3i(q[1], q[2], q[3]))
+    if p < 0:
+        return 0.0, 0
+    if evaluated[p] == 0:
+        return 0.0, 0
+    return values[p], 1
 
 
 @wp.func
@@ -285,6 +318,7 @@ def make_kernels():
         tolerance: float,
         max_iterations: int,
         values: wp.array(dtype=wp.float32),
+        evaluated: wp.array(dtype=wp.int32),
         masks: wp.array(dtype=wp.int32),
         cut_offsets: wp.array(dtype=wp.int32),
         offset: int,
@@ -294,7 +328,9 @@ def make_kernels():
     ):
         """A cut point on every crossed edge owned by point ``p``: the shared
         safeguarded Newton search (:func:`~warpblob.field._kernels.make_segment_root`, in falloff
-        space first) until ``|F - iso| <= tolerance``."""
+        space first) until ``|F - iso| <= tolerance``, started at the root of the cubic through the four
+        samples on the edge's line where the two beyond its ends were evaluated (the linear guess
+        elsewhere: a stand-in is not a value of F)."""
         p = wp.tid() + offset
         mask = masks[p]
         if mask == 0:
@@ -310,7 +346,13 @@ def make_kernels():
                 e = edge_end(q, slot)
                 step = point_position(l, e) - p0
                 f1 = values[point_index(l, e[0], wp.vec3i(e[1], e[2], e[3]))] - iso
-                r, tx, count = segment_root(m, p0, step, f0, f1, -1.0, iso, tolerance, max_iterations)
+                before, after = line_neighbours(q, slot)
+                fm, has_m = sampled_value(l, values, evaluated, before)
+                f2, has_2 = sampled_value(l, values, evaluated, after)
+                t0 = float(-1.0)
+                if has_m != 0 and has_2 != 0:
+                    t0 = cubic_guess(fm - iso, f0, f1, f2 - iso)
+                r, tx, count = segment_root(m, p0, step, f0, f1, t0, iso, tolerance, max_iterations)
                 cut_positions[out] = p0 + tx * step
                 cut_params[out] = tx
                 evaluations[out] = count
@@ -330,16 +372,23 @@ def count_cuts_kernel(
     l: Lattice,
     iso: float,
     values: wp.array(dtype=wp.float32),
+    evaluated: wp.array(dtype=wp.int32),
     offset: int,
     masks: wp.array(dtype=wp.int32),
     counts: wp.array(dtype=wp.int32),
 ):
-    """Bit mask and number of the owned edges of ``p`` whose ends are strictly on opposite sides."""
+    """Bit mask and number of the owned edges of ``p`` whose ends are strictly on opposite sides.
+
+    A point that was not evaluated owns none: every tet using it lies in a sub-block proven inside or
+    outside over the box its tets reach, and every lattice edge at the point is an edge of such a tet,
+    so both ends of each lie on the proven side (the stand-in's side). Its edges are not looked at."""
     p = wp.tid() + offset
-    q = point_coords(l, p)
-    s = label_of(values[p], iso)
     mask = int(0)
     count = int(0)
+    q = point_coords(l, p)
+    s = int(0)
+    if evaluated[p] != 0:
+        s = label_of(values[p], iso)
     if s != 0:
         slots = wp.where(q[0] == 0, 3, 11)
         for slot in range(slots):

@@ -263,12 +263,12 @@ class _Cuts:
     count: int  # C
 
 
-def _cut(run: _Run, values: wp.array) -> _Cuts:
+def _cut(run: _Run, values: wp.array, evaluated: wp.array) -> _Cuts:
     """Stage 3: the crossed lattice edges (masks and a scan number them) and a root on each."""
     dev = run.device
     masks = wp.empty(run.n_points, dtype=wp.int32, device=dev)
     counts = wp.empty(run.n_points, dtype=wp.int32, device=dev)
-    run.launch(_kernels.count_cuts_kernel, run.n_points, [run.lattice, _ISO, values], [masks, counts])
+    run.launch(_kernels.count_cuts_kernel, run.n_points, [run.lattice, _ISO, values, evaluated], [masks, counts])
     offsets, n_cuts = scan(counts)
     check_memory(_WHO, "cut point", n_cuts * 28, run.limit)
     cuts = _Cuts(
@@ -282,7 +282,7 @@ def _cut(run: _Run, values: wp.array) -> _Cuts:
     run.launch(
         run.kernels["cut"],
         run.n_points,
-        [run.model, run.lattice, _ISO, _TOLERANCE, _ROOT_ITERATIONS, values, masks, offsets],
+        [run.model, run.lattice, _ISO, _TOLERANCE, _ROOT_ITERATIONS, values, evaluated, masks, offsets],
         [cuts.positions, cuts.params, cuts.steps],
     )
     return cuts
@@ -647,7 +647,7 @@ def tetrahedralize(
     clock.lap("classify")
     values, evaluated = _sample(run, sub_states)
     clock.lap("sample")
-    cuts = _cut(run, values)
+    cuts = _cut(run, values, evaluated)
     clock.lap("cut")
     labels, targets, rounds = _warp(run, values, cuts, a_long, a_short)
     clock.lap("warp")
