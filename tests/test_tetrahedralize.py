@@ -622,8 +622,9 @@ def test_stage_seconds_cover_the_call():
 
 @pytest.mark.parametrize("case", ["tumor", "twisted"])
 def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
-    """The CPU samples the lattice in array mode (one tree walk per block of 8^3 points of a colour), a GPU
-    point by point: the same points sampled, the field the same up to the order of sums, the same tets."""
+    """The CPU bounds the sub-blocks and samples the lattice in array mode (one tree walk per block for its
+    64 sub-blocks, one per block of 8^3 points of a colour), a GPU point by point: the same sub-block
+    states, the same points sampled, the field the same up to the order of sums, the same tets."""
     from warpblob.tetrahedralize import _stuffing
 
     if case == "tumor":
@@ -636,6 +637,9 @@ def test_block_and_point_sampling_give_the_same_mesh(case, monkeypatch):
         monkeypatch.setattr(_stuffing, "SAMPLING", mode)
         meshes[mode] = tetrahedralize(model, cellsize=h, device="cpu")
     a, b = meshes["points"], meshes["rows"]
+    for key in ("sub_blocks_active", "sub_blocks_inside", "sub_blocks_outside", "interval_evaluations"):
+        assert a.stats[key] == b.stats[key], key
+    assert a.stats["sub_blocks_outside"] > 0 and (case != "tumor" or a.stats["sub_blocks_inside"] > 0)
     assert a.stats["lattice_evaluations"] == b.stats["lattice_evaluations"] > 1000
     np.testing.assert_array_equal(a.tets, b.tets)
     assert np.abs(a.nodes - b.nodes).max() < 1e-4 * h

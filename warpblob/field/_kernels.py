@@ -696,6 +696,14 @@ def ball_cell_count(m: ModelArrays, gi: int, q: wp.vec3, radius: float):
 # array mode: one traversal evaluates a whole block of grid points
 
 
+#: half side of a 2-cell sub-block's cube in cells, plus 1e-4 (its ball has sqrt(3) times that radius)
+SUB_HALF = 1.0001
+_SUB_HALF = wp.constant(SUB_HALF)
+#: ball radius of a 2-cell sub-block in cells: its half diagonal sqrt(3), plus 1e-4
+SUB_BALL = 1.7320509 * SUB_HALF
+_SUB_BALL = wp.constant(SUB_BALL)
+
+
 @wp.struct
 class BlockRows:
     """Scratch of one array-mode traversal: the F values of a block of
@@ -705,7 +713,11 @@ class BlockRows:
     ``result`` holds a primitive's values over its index range only, slot
     ``result + 1`` is 1.0 where the point is wanted (others are skipped).
     Point ``(i, j, k)`` is at ``origin + h * (corner + (i, j, k))``, computed
-    as :func:`grid_point` does so that it is bit-identical to the grid's."""
+    as :func:`grid_point` does so that it is bit-identical to the grid's.
+    Bounds rows bound F over the cube of half side ``half`` (and the ball of
+    radius ``ball``), in units of ``h``, around each 2-cell sub-block's
+    centre (:data:`SUB_HALF` and :data:`SUB_BALL` unless a caller widens
+    them)."""
 
     rows: wp.array(dtype=wp.float32)
     base: int
@@ -713,6 +725,8 @@ class BlockRows:
     origin: wp.vec3
     h: float
     corner: wp.vec3i
+    half: float
+    ball: float
 
 
 BLOCK_SIDE = 8
@@ -732,6 +746,8 @@ def block_rows(rows: wp.array(dtype=wp.float32), t: int, result: int, origin: wp
     ctx.origin = origin
     ctx.h = h
     ctx.corner = corner
+    ctx.half = _SUB_HALF
+    ctx.ball = _SUB_BALL
     return ctx
 
 
@@ -888,12 +904,6 @@ SUB_BLOCK_SIDE = 4
 SUB_BLOCKS = SUB_BLOCK_SIDE * SUB_BLOCK_SIDE * SUB_BLOCK_SIDE
 _SSIDE = wp.constant(SUB_BLOCK_SIDE)
 _SUBS = wp.constant(SUB_BLOCKS)
-#: half side of a 2-cell sub-block's cube in cells, plus 1e-4 (its ball has sqrt(3) times that radius)
-SUB_HALF = 1.0001
-_SUB_HALF = wp.constant(SUB_HALF)
-#: ball radius of a 2-cell sub-block in cells: its half diagonal sqrt(3), plus 1e-4
-SUB_BALL = 1.7320509 * SUB_HALF
-_SUB_BALL = wp.constant(SUB_BALL)
 
 
 @wp.func
@@ -913,8 +923,8 @@ def sub_range(ctx: BlockRows, lo: wp.vec3, hi: wp.vec3):
     r = vec7()
     for d in range(3):
         c = float(ctx.corner[d]) + 1.0
-        r[d] = float(wp.max(int(wp.ceil(0.5 * (a[d] - _SUB_HALF - c) - 1.0e-3)), 0))
-        r[d + 3] = float(wp.min(int(wp.floor(0.5 * (b[d] + _SUB_HALF - c) + 1.0e-3)), _SSIDE - 1))
+        r[d] = float(wp.max(int(wp.ceil(0.5 * (a[d] - ctx.half - c) - 1.0e-3)), 0))
+        r[d + 3] = float(wp.min(int(wp.floor(0.5 * (b[d] + ctx.half - c) + 1.0e-3)), _SSIDE - 1))
     return r
 
 
@@ -940,7 +950,7 @@ def bounds_leaf(m: ModelArrays, node: int, ctx: BlockRows):
                 j = (kk * _SSIDE + jj) * _SSIDE + ii
                 b = vec7(0.0, 1.0e30, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 if not warped:
-                    b = interval_primitive(m, node, sub_block_center(ctx, ii, jj, kk), ctx.h * _SUB_BALL, ctx.h * _SUB_HALF)
+                    b = interval_primitive(m, node, sub_block_center(ctx, ii, jj, kk), ctx.h * ctx.ball, ctx.h * ctx.half)
                 ctx.rows[res + j] = b[0]
                 ctx.rows[res + _SUBS + j] = b[1]
     return vec7(rg[0], rg[1], rg[2], rg[3], rg[4], rg[5], float(ctx.result), 0.0)
@@ -1464,7 +1474,7 @@ def make_evaluate(
             # the block's cube (cells corner ... corner + 8) grown by 1e-4:
             # it meets every box a sub-block's cube meets
             c = grid_point(ctx.origin, ctx.h, ctx.corner[0] + 4, ctx.corner[1] + 4, ctx.corner[2] + 4)
-            return traverse(m, c, ctx.h * (3.0 + _SUB_HALF) * 1.0001, 0, ctx)
+            return traverse(m, c, ctx.h * (3.0 + ctx.half) * 1.0001, 0, ctx)
 
         return evaluate_bounds
     if array:

@@ -16,7 +16,8 @@ from __future__ import annotations
 import warp as wp
 
 from ..field._kernels import (
-    BLOCK_POINTS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate, make_segment_root,
+    BLOCK_POINTS, SUB_BLOCK_SIDE, SUB_BLOCKS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate,
+    make_segment_root, sub_bounds, vec7,
 )  # fmt: skip
 from ._tables import MAX_STENCIL
 
@@ -31,6 +32,13 @@ _SUB_CELLS = wp.constant(SUB_CELLS)
 _TETS_PER_CELL = wp.constant(TETS_PER_CELL)
 _MAX_STENCIL = wp.constant(MAX_STENCIL)
 _BLOCK_POINTS = wp.constant(BLOCK_POINTS)
+assert BLOCK // SUB == SUB_BLOCK_SIDE  # a block's sub-blocks are the bounds rows' 4^3
+_ROW_SUBS = wp.constant(SUB_BLOCKS)
+_ROW_SIDE = wp.constant(SUB_BLOCK_SIDE)
+#: a sub-block's box in bounds rows: its tets reach one cube further along +x, +y, +z, so 3 cubes a side,
+#: as :func:`box_state` bounds it (half side 1.5 cubes plus 1e-4, and the ball around that cube)
+_ROW_HALF = wp.constant(1.5 * 1.0001)
+_ROW_BALL = wp.constant(1.7320509 * 1.5 * 1.0001)
 _SHORT = wp.constant(0.8660254037844386)  # short edge / long edge = sqrt(3) / 2
 _HALF_SIDE = wp.constant(0.5 * 1.0001)  # half side / box side, with margin
 
@@ -201,6 +209,7 @@ def make_kernels():
     bound = make_evaluate(True, interval=True, cube=True)
     value = make_evaluate(True)
     block_value = make_evaluate(True, derivatives=False, array=True)
+    block_bounds = make_evaluate(True, interval=True, array=True)
     segment_root = make_segment_root(value, falloff_space=True)
 
     @wp.func
@@ -246,6 +255,52 @@ def make_kernels():
             state = box_state(m, l, iso, first, _SUB)
             bounded[s] = 1
         sub_states[s] = state
+
+    @wp.kernel(enable_backward=False, module="unique")
+    def classify_subs_rows_kernel(
+        m: ModelArrays,
+        l: Lattice,
+        iso: float,
+        block_states: wp.array(dtype=wp.int32),
+        first_block: int,
+        rows: wp.array(dtype=wp.float32),
+        result_slot: int,
+        offset: int,
+        sub_states: wp.array(dtype=wp.int32),
+        bounded: wp.array(dtype=wp.int32),
+    ):
+        """``classify_subs_kernel``, one thread per block: the 64 sub-blocks of a mixed block bounded by one
+        tree walk (bounds rows: the traversal and the wide operators' grid walks shared, the tape pruned
+        over the block), over the same boxes of 3 cubes a side (the rows' origin half a cube on, so that
+        their 2-cube spacing puts each box's centre 1.5 cubes past its first cube)."""
+        t = wp.tid() + offset
+        b = first_block + t
+        c = grid_coords(l.blocks, b)
+        state = block_states[b]
+        ctx = block_rows(rows, t, result_slot, colour_origin(l, 1), l.h, wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK))
+        ctx.half = _ROW_HALF
+        ctx.ball = _ROW_BALL
+        r = vec7()
+        if state == _MIXED:
+            r = block_bounds(m, ctx)
+        for sb in range(_ROW_SUBS):
+            sx = c[0] * _ROW_SIDE + sb % _ROW_SIDE
+            sy = c[1] * _ROW_SIDE + (sb // _ROW_SIDE) % _ROW_SIDE
+            sz = c[2] * _ROW_SIDE + sb // (_ROW_SIDE * _ROW_SIDE)
+            if sx < l.subs[0] and sy < l.subs[1] and sz < l.subs[2]:
+                s = (sz * l.subs[1] + sy) * l.subs[0] + sx
+                if state == _MIXED:
+                    bb = sub_bounds(ctx, r, sb)
+                    st = _MIXED
+                    if bb[0] > iso:
+                        st = _INSIDE
+                    elif bb[1] < iso:
+                        st = _OUTSIDE
+                    sub_states[s] = st
+                    bounded[s] = 1
+                else:
+                    sub_states[s] = state
+                    bounded[s] = 0
 
     @wp.kernel(enable_backward=False, module="unique")
     def sample_points_kernel(
@@ -361,6 +416,7 @@ def make_kernels():
     return {
         "classify_blocks": classify_blocks_kernel,
         "classify_subs": classify_subs_kernel,
+        "classify_subs_rows": classify_subs_rows_kernel,
         "sample": sample_points_kernel,
         "sample_rows": sample_rows_kernel,
         "cut": cut_edges_kernel,

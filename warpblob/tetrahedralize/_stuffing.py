@@ -38,7 +38,8 @@ _WHO = "tetrahedralize"
 _ISO = float(ISO_VALUE)
 _TOLERANCE = 1e-4  # largest |F - iso| of a cut point
 _ROOT_ITERATIONS = 32
-#: lattice sampling: "auto" (array mode on the CPU, point by point on a GPU), "rows" or "points" (tests)
+#: sub-block bounds and lattice sampling: "auto" (array mode on the CPU, point by point on a GPU), "rows" or
+#: "points" (tests)
 SAMPLING = "auto"
 #: blocks of 8^3 lattice points a CPU thread takes at a time
 _ROW_CHUNK = 16
@@ -221,7 +222,13 @@ def _classify(run: _Run) -> tuple[wp.array, wp.array, wp.array]:
     run.launch(k["classify_blocks"], run.n_blocks, [run.model, lat, _ISO], [block_states])
     sub_states = wp.empty(run.n_subs, dtype=wp.int32, device=dev)
     bounded = wp.empty(run.n_subs, dtype=wp.int32, device=dev)
-    run.launch(k["classify_subs"], run.n_subs, [run.model, lat, _ISO, block_states], [sub_states, bounded])
+    if _use_rows(dev):
+        # one bounds-rows walk per mixed block for its 64 sub-blocks
+        check_memory(_WHO, "sub-block bounds", block_chunk(run.linear, run.n_blocks)[1], run.limit)
+        launch_blocks(k["classify_subs_rows"], run.n_blocks, [run.model, lat, _ISO, block_states], [sub_states, bounded],
+                      run.linear, dev, run.threads, min_chunk=_ROW_CHUNK)  # fmt: skip
+    else:
+        run.launch(k["classify_subs"], run.n_subs, [run.model, lat, _ISO, block_states], [sub_states, bounded])
     flags = wp.empty(run.n_subs, dtype=wp.int32, device=dev)
     run.launch(_kernels.active_flags_kernel, run.n_subs, [sub_states], [flags])
     return sub_states, bounded, compact(flags, dev, run.threads)
