@@ -393,11 +393,17 @@ def test_progress_bar_shows_the_stages_on_a_terminal(monkeypatch, capsys):
 
 def _tape_reference(lm, lo, hi):
     """Leaves whose boxes meet the closed box [lo, hi] and whose ancestors' boxes all do (a walk prunes a
-    subtree at the first box that misses): an independent count over the linearized arrays."""
+    subtree at the first box that misses), a warp counting as one leaf with nothing below it (the block
+    walks take a warp's subtree whole): an independent count over the linearized arrays."""
+    kinds = wb.tree._kinds
     visited = np.all((lm.lower <= hi) & (lm.upper >= lo), axis=1)
+    warped = np.zeros(len(lm.kind), dtype=bool)  # below a warp
     for i in range(1, len(lm.kind)):  # pre-order: a parent comes before its children
-        visited[i] &= visited[lm.parent[i]]
-    return int((visited & (lm.kind < wb.tree._kinds.PRIMITIVE_KIND_END)).sum())
+        p = lm.parent[i]
+        visited[i] &= visited[p]
+        warped[i] = warped[p] or lm.kind[p] in kinds.WARP_KINDS
+    leaf = (lm.kind < kinds.PRIMITIVE_KIND_END) | np.isin(lm.kind, kinds.WARP_KINDS)
+    return int((visited & leaf & ~warped).sum())
 
 
 @pytest.mark.parametrize("sampling", ["rows", "points"])
@@ -405,18 +411,20 @@ def test_stats_give_the_tape_pruned_over_each_block(sampling, monkeypatch):
     """Per active block, the primitives whose boxes (and their ancestors') meet its cube, the tape its samples
     walk, against a numpy count over the linearized boxes: counted by the array-mode walk of the samples
     (``rows``) and by the interval walk used where samples are taken point by point (``points``); a wide
-    blend (grid-listed operands) and a Difference (the subtracted operand's box outside the result's)."""
+    blend (grid-listed operands), a Difference (the subtracted operand's box outside the result's) and a
+    warp."""
     from warpblob.polygonize import _pipeline
 
     monkeypatch.setattr(_pipeline, "SAMPLING", sampling)
     rng = np.random.default_rng(7)
     blobs = [wb.Point(tuple(c), 0.35) for c in rng.uniform(-1.0, 1.0, (24, 3))]
+    arm = wb.Twist(wb.Segment((1.2, -0.8, -0.3), (1.2, 0.8, 0.3), 0.25), (0, 1, 0), 1.0)  # a warp: one leaf
     model = wb.Union(wb.Difference(wb.Blend(*blobs), wb.Point((0.9, 0.9, 0.9), 0.5)),
-                     wb.Segment((-1.5, 0.0, 0.0), (1.5, 0.2, 0.1), 0.2))  # fmt: skip
+                     wb.Segment((-1.5, 0.0, 0.0), (1.5, 0.2, 0.1), 0.2), arm)  # fmt: skip
     h = 0.05
     s = wb.polygonize(model, cellsize=h, relax=False, device="cpu").stats
     lm = wb.linearize(model)
-    assert s["tape_leaves"] == lm.primitive_count == 26
+    assert s["tape_leaves"] == lm.primitive_count == 27
     blocks, leaves = s["block_tapes"]["blocks"], s["block_tapes"]["leaves"]
     assert len(blocks) == len(leaves) == s["blocks_total"] - s["blocks_rejected"] > 8
     lo, hi = lm.bounds
