@@ -16,8 +16,17 @@ from __future__ import annotations
 import warp as wp
 
 from ..field._kernels import (
-    BLOCK_POINTS, SUB_BLOCK_SIDE, SUB_BLOCKS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate,
-    make_segment_root, sub_bounds, vec7,
+    BLOCK_POINTS,
+    SUB_BLOCK_SIDE,
+    SUB_BLOCKS,
+    ModelArrays,
+    block_result,
+    block_rows,
+    cubic_guess,
+    make_evaluate,
+    make_segment_root,
+    sub_bounds,
+    vec7,
 )  # fmt: skip
 from ._tables import MAX_STENCIL
 

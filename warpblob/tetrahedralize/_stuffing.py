@@ -38,18 +38,20 @@ _WHO = "tetrahedralize"
 _ISO = float(ISO_VALUE)
 _TOLERANCE = 1e-4  # largest |F - iso| of a cut point
 _ROOT_ITERATIONS = 32
+_WARP_ROUNDS = 4  # rounds of warp decisions per host sync (chains of violations are short)
 #: sub-block bounds and lattice sampling: "auto" (array mode on the CPU, point by point on a GPU), "rows" or
 #: "points" (tests)
 SAMPLING = "auto"
-#: blocks of 8^3 lattice points a CPU thread takes at a time
+#: blocks (of 8^3 lattice cubes or points) a CPU thread takes at a time in array mode
 _ROW_CHUNK = 16
 
 
 def _use_rows(device) -> bool:
+    """Whether the sub-block bounds and the lattice samples take array-mode walks on ``device``."""
     if SAMPLING == "auto":
         return device.is_cpu
     return SAMPLING == "rows"
-_WARP_ROUNDS = 4  # rounds of warp decisions per host sync (chains of violations are short)
+
 
 _CACHE: dict = {}
 
