@@ -63,7 +63,10 @@ size the next allocation):
    smaller cut index). Afterwards every surviving cut point lies in
    ``[alpha, 1 - alpha]`` of its edge and every moved point sits within alpha
    of its lattice position on an edge whose other end is an unmoved lattice
-   point. The result does not depend on the thread schedule.
+   point. The result does not depend on the thread schedule. Points that
+   were not evaluated have no cut point on their edges and are not looked
+   at: the stage took 12 ms instead of 31 on tumor at h = 0.05, 26 instead
+   of 80 on medusa (the meshes bit for bit the same).
 5. **Stencils.** Each BCC tet with at least one ``+`` vertex is replaced by
    the stencil of its sign pattern: the whole tet when no vertex is ``-``,
    else 1 to 3 tets over its ``+``/``0`` vertices and cut points (table in

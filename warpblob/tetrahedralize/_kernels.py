@@ -536,17 +536,20 @@ def violated_kernel(
     masks: wp.array(dtype=wp.int32),
     cut_offsets: wp.array(dtype=wp.int32),
     cut_params: wp.array(dtype=wp.float32),
+    evaluated: wp.array(dtype=wp.int32),
     offset: int,
     states: wp.array(dtype=wp.int32),
 ):
-    """A point with no violating cut point keeps its place; a violated one is undecided."""
+    """A point with no violating cut point keeps its place; a violated one is undecided. A point that
+    was not evaluated has no cut point on its edges (see :func:`count_cuts_kernel`) and keeps its place."""
     p = wp.tid() + offset
-    q = point_coords(l, p)
     state = _KEEP
-    for k in range(14):
-        v, d = violator(l, q, k, alpha_long, alpha_short, masks, cut_offsets, cut_params)
-        if v[0] >= 0:
-            state = _UNDECIDED
+    if evaluated[p] != 0:
+        q = point_coords(l, p)
+        for k in range(14):
+            v, d = violator(l, q, k, alpha_long, alpha_short, masks, cut_offsets, cut_params)
+            if v[0] >= 0:
+                state = _UNDECIDED
     states[p] = state
 
 
@@ -608,13 +611,13 @@ def warp_points_kernel(
     by sign: inside ones stay, outside ones move. A moving point goes to its closest violating
     cut point whose other end stays, and gets label 0 (on the surface)."""
     p = wp.tid() + offset
-    q = point_coords(l, p)
     s = label_of(values[p], iso)
     state = states[p]
     if state == _UNDECIDED:
         state = wp.where(s > 0, _KEEP, _MOVE)
     target = int(-1)
     if state == _MOVE:
+        q = point_coords(l, p)
         best = float(1.0e30)
         for k in range(14):
             v, d = violator(l, q, k, alpha_long, alpha_short, masks, cut_offsets, cut_params)

@@ -298,7 +298,7 @@ def _cut(run: _Run, values: wp.array, evaluated: wp.array) -> _Cuts:
 
 
 def _warp(
-    run: _Run, values: wp.array, cuts: _Cuts, alpha_long: float, alpha_short: float
+    run: _Run, values: wp.array, evaluated: wp.array, cuts: _Cuts, alpha_long: float, alpha_short: float
 ) -> tuple[wp.array, wp.array, int]:
     """Stage 4, warping: lattice points too close to a cut point move onto it.
 
@@ -314,7 +314,7 @@ def _warp(
     dev, lat = run.device, run.lattice
     warp_args = [lat, alpha_long, alpha_short, cuts.masks, cuts.offsets, cuts.params]
     states = wp.empty(run.n_points, dtype=wp.int32, device=dev)
-    run.launch(_kernels.violated_kernel, run.n_points, warp_args, [states])
+    run.launch(_kernels.violated_kernel, run.n_points, [*warp_args, evaluated], [states])
     spare = wp.empty(run.n_points, dtype=wp.int32, device=dev)
     changed = wp.zeros(1, dtype=wp.int32, device=dev)
     rounds = 0
@@ -658,7 +658,7 @@ def tetrahedralize(
     clock.lap("sample")
     cuts = _cut(run, values, evaluated)
     clock.lap("cut")
-    labels, targets, rounds = _warp(run, values, cuts, a_long, a_short)
+    labels, targets, rounds = _warp(run, values, evaluated, cuts, a_long, a_short)
     clock.lap("warp")
     if levels.count:
         # with materials, no coarse cube may straddle a material interface
