@@ -185,6 +185,17 @@ def label_of(value: float, iso: float):
 
 
 @wp.func
+def proven_state(bounds: vec7, iso: float):
+    """INSIDE where the bounds (F_min, F_max, ...) prove ``F > iso``, OUTSIDE where they prove ``F < iso``,
+    else MIXED."""
+    if bounds[0] > iso:
+        return _INSIDE
+    if bounds[1] < iso:
+        return _OUTSIDE
+    return _MIXED
+
+
+@wp.func
 def point_need(l: Lattice, sub_states: wp.array(dtype=wp.int32), q: wp.vec4i):
     """(needed, proven inside) of point ``q``: whether a tet of a mixed sub-block uses it, and else
     whether the sub-blocks around it are proven inside (all tets using the point agree on the side)."""
@@ -227,13 +238,7 @@ def make_kernels():
         own tets reach at most one cube further along +x, +y, +z."""
         extent = float(side + 1) * l.h
         corner = l.origin + l.h * wp.vec3(float(first[0]), float(first[1]), float(first[2]))
-        r = bound(m, corner + wp.vec3(0.5 * extent), extent * _HALF_SIDE)
-        state = _MIXED
-        if r[0] > iso:
-            state = _INSIDE
-        elif r[1] < iso:
-            state = _OUTSIDE
-        return state
+        return proven_state(bound(m, corner + wp.vec3(0.5 * extent), extent * _HALF_SIDE), iso)
 
     @wp.kernel(enable_backward=False, module="unique")
     def classify_blocks_kernel(
@@ -299,13 +304,7 @@ def make_kernels():
             if sx < l.subs[0] and sy < l.subs[1] and sz < l.subs[2]:
                 s = (sz * l.subs[1] + sy) * l.subs[0] + sx
                 if state == _MIXED:
-                    bb = sub_bounds(ctx, r, sb)
-                    st = _MIXED
-                    if bb[0] > iso:
-                        st = _INSIDE
-                    elif bb[1] < iso:
-                        st = _OUTSIDE
-                    sub_states[s] = st
+                    sub_states[s] = proven_state(sub_bounds(ctx, r, sb), iso)
                     bounded[s] = 1
                 else:
                     sub_states[s] = state
