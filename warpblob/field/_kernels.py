@@ -766,12 +766,19 @@ def grid_point(origin: wp.vec3, h: float, gx: int, gy: int, gz: int):
 
 
 @wp.func
-def block_center(ctx: BlockRows):
-    """(centre, half side) of the cube spanned by the block's points."""
-    lo = grid_point(ctx.origin, ctx.h, ctx.corner[0], ctx.corner[1], ctx.corner[2])
-    hi = grid_point(ctx.origin, ctx.h, ctx.corner[0] + _BSIDE - 1, ctx.corner[1] + _BSIDE - 1, ctx.corner[2] + _BSIDE - 1)
+def points_cube(origin: wp.vec3, h: float, corner: wp.vec3i):
+    """(centre, half side, grown by 1e-4) of the cube spanned by the block of grid points from index
+    ``corner``: what an array-mode walk of the block prunes by."""
+    lo = grid_point(origin, h, corner[0], corner[1], corner[2])
+    hi = grid_point(origin, h, corner[0] + _BSIDE - 1, corner[1] + _BSIDE - 1, corner[2] + _BSIDE - 1)
     half = 0.5 * wp.max(wp.max(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
     return 0.5 * (lo + hi), half * 1.0001
+
+
+@wp.func
+def block_center(ctx: BlockRows):
+    """(centre, half side) of the cube spanned by the block's points."""
+    return points_cube(ctx.origin, ctx.h, ctx.corner)
 
 
 @wp.func

@@ -6,7 +6,7 @@ import warp as wp
 
 from ..field._kernels import (
     BLOCK_POINTS, SUB_BLOCKS, ModelArrays, block_result, block_rows, cubic_guess, make_evaluate, make_segment_root,
-    sub_bounds, vec7,
+    points_cube, sub_bounds, vec7,
 )  # fmt: skip
 from ._tables import APEX
 
@@ -784,15 +784,13 @@ def make_tape_kernel(counted) -> dict:
     def block_tape_kernel(m: ModelArrays, g: Grid, active: wp.array(dtype=wp.int32), offset: int,
                           tape: wp.array(dtype=wp.int32)):  # fmt: skip
         """Leaves of the tape pruned over active block ``tid``'s cube: the cube
-        an array-mode walk of its samples prunes by (the one
-        :func:`~warpblob.field._kernels.block_center` gives), by the same boxes
-        and grid cells."""
+        an array-mode walk of its samples prunes by
+        (:func:`~warpblob.field._kernels.points_cube`), by the same boxes and
+        grid cells."""
         tid = wp.tid() + offset
         c = block_coords(g, active[tid])
-        lo = vertex_position(g, c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK)
-        hi = vertex_position(g, c[0] * _BLOCK + _BLOCK - 1, c[1] * _BLOCK + _BLOCK - 1, c[2] * _BLOCK + _BLOCK - 1)
-        half = 0.5 * wp.max(wp.max(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
-        tape[tid] = int(counted(m, 0.5 * (lo + hi), half * 1.0001)[7])
+        centre, half = points_cube(g.origin, g.h, wp.vec3i(c[0] * _BLOCK, c[1] * _BLOCK, c[2] * _BLOCK))
+        tape[tid] = int(counted(m, centre, half)[7])
 
     return {"tape": block_tape_kernel}
 

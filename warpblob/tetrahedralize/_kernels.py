@@ -449,11 +449,11 @@ def count_cuts_kernel(
     p = wp.tid() + offset
     mask = int(0)
     count = int(0)
-    q = point_coords(l, p)
     s = int(0)
     if evaluated[p] != 0:
         s = label_of(values[p], iso)
     if s != 0:
+        q = point_coords(l, p)
         slots = wp.where(q[0] == 0, 3, 11)
         for slot in range(slots):
             e = edge_end(q, slot)
