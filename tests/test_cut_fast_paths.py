@@ -95,9 +95,11 @@ def test_same_side_skip_keeps_every_hit(device, scale):
 
 
 def test_unique_inverse_is_numpys():
-    """Narrow keys (the packed sort), wide and negative ones (the argsort): numpy's unique and inverse."""
+    """Keys of a small range (the marks), narrow keys (the packed sort), wide and negative ones (the argsort):
+    numpy's unique and inverse."""
     rng = np.random.default_rng(5)
-    for keys in (rng.integers(0, 1_000, 5000), rng.integers(0, 1 << 60, 5000), rng.integers(-50, 50, 300),
+    for keys in (rng.integers(0, 1_000, 5000), rng.integers(0, 60_000, 60), rng.integers(0, 1 << 40, 5000),
+                 rng.integers(0, 1 << 60, 5000), rng.integers(-50, 50, 300),
                  np.zeros(0, np.int64), np.array([7])):  # fmt: skip
         keys = np.concatenate([keys, keys[: len(keys) // 3]]).astype(np.int64)
         want = np.unique(keys, return_inverse=True)

@@ -856,18 +856,24 @@ def _unique_first(keys: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray,
 
 
 def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(keys, return_inverse=True)`` of 1-D int64 keys (the inverse flat): a value sort of
-    ``key << b | position`` where that fits 63 bits, else one quicksort argsort (``np.unique`` with an
-    inverse costs several times either on these sizes)."""
+    """``np.unique(keys, return_inverse=True)`` of 1-D int64 keys (the inverse flat): marks in a table where the
+    keys are non-negative and below ``max(4 n, 2^16)``, else a value sort of ``key << b | position`` where
+    that fits 63 bits, else one quicksort argsort (``np.unique`` with an inverse costs several times any of
+    these on these sizes)."""
     keys = np.asarray(keys, dtype=np.int64).ravel()
     n = len(keys)
     if n == 0:
         return keys.copy(), np.zeros(0, dtype=np.int64)
+    low, top = int(keys.min()), int(keys.max())
+    if low >= 0 and top < max(4 * n, 1 << 16):  # keys of a small range (pairs of aggregates): marks, no sort
+        present = np.zeros(top + 1, dtype=bool)
+        present[keys] = True
+        return np.flatnonzero(present), (np.cumsum(present) - 1)[keys]
     bits = max(int(n - 1).bit_length(), 1)
     heads = np.empty(n, dtype=bool)
     heads[0] = True
     inverse = np.empty(n, dtype=np.int64)
-    if int(keys.min()) >= 0 and int(keys.max()).bit_length() + bits <= 62:
+    if low >= 0 and top.bit_length() + bits <= 62:
         packed = np.sort((keys << bits) | np.arange(n, dtype=np.int64))
         k = packed >> bits
         np.not_equal(k[1:], k[:-1], out=heads[1:])

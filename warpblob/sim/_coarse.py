@@ -119,7 +119,7 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int) -
     def cells(h):
         c = np.floor((pts[:, axes] - lo[axes]) / h).astype(np.int64)
         width = c.max(axis=0) + 1
-        return np.unique((c[:, 0] * width[1] + c[:, 1]) * width[2] + c[:, 2], return_inverse=True)
+        return _unique_inverse((c[:, 0] * width[1] + c[:, 1]) * width[2] + c[:, 2])
 
     # the occupied cells of a lattice scale about as size^-3: two corrections land near the aim
     for _ in range(2):
@@ -202,7 +202,7 @@ class CoarseSpace:
                device=dev), int(G)], [wp.array(pair_slot, dtype=wp.int32, device=dev, copy=False),
                wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
-        pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's, by a packed value sort)
+        pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's; codes below G^2: by marks)
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
         pair_offsets[1:] = np.cumsum(np.bincount(pair_of_slot, minlength=len(pairs)))
 
