@@ -520,6 +520,66 @@ def test_inverted_and_flat_rest_tets_are_refused_by_index():
         simulation(TetMesh(nodes, [[0, 1, 2, 3]]))
 
 
+def _reference_check(rest, tets, alive):
+    """The rest check in numpy float64, tet by tet: (kind, tet) of the first bad tet of the first kind found
+    (1 a node outside [0, N), 2 a repeated node, 3 volume <= 1e-7 longest edge^3), or None."""
+    n = len(rest)
+    found = {}
+    for t, (tet, live) in enumerate(zip(tets, alive)):
+        if not live:
+            continue
+        if any(i < 0 or i >= n for i in tet):
+            found.setdefault(1, t)
+            continue
+        if len(set(tet.tolist())) < 4:
+            found.setdefault(2, t)
+            continue
+        p = rest[tet].astype(np.float64)
+        volume = np.dot(p[1] - p[0], np.cross(p[2] - p[0], p[3] - p[0])) / 6.0
+        longest = max(np.linalg.norm(p[j] - p[i]) for i in range(4) for j in range(i + 1, 4))
+        if volume <= 1e-7 * longest**3:
+            found.setdefault(3, t)
+    for kind in (1, 2, 3):
+        if kind in found:
+            return kind, found[kind]
+    return None
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_rest_check_matches_a_numpy_reference(seed):
+    """The kernel's rest check refuses exactly the tets a tet-by-tet float64 reference does, with the same
+    tet named first, by kind: nodes out of range, repeated nodes, inverted and flat tets (dead tets are
+    never refused), on random tets mixing all of them; each refused tet is then killed and the check run
+    again, down to none."""
+    from warpblob.sim._elements import check_tets
+
+    rng = np.random.default_rng(seed)
+    rest = rng.random((40, 3)).astype(np.float32)
+    rest[30:] = rest[0] + np.outer(np.arange(10), [0.1, 0.2, 0.3])  # collinear nodes: flat tets
+    tets = np.stack([rng.choice(40, 4, replace=False) for _ in range(300)]).astype(np.int32)
+    p = rest[tets].astype(np.float64)
+    volume = np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]))
+    tets[volume < 0] = tets[volume < 0][:, [0, 2, 1, 3]]  # positive ...
+    bad = rng.choice(300, 12, replace=False)
+    kinds = rng.integers(0, 4, 12)
+    tets[bad[kinds == 0], 3] = 40 + seed  # ... but a few out of range,
+    tets[bad[kinds == 1], 2] = tets[bad[kinds == 1], 0]  # repeated,
+    tets[bad[kinds == 2]] = tets[bad[kinds == 2]][:, [1, 0, 2, 3]]  # inverted, or flat:
+    tets[bad[kinds == 3]] = [rng.choice(np.arange(30, 40), 4, replace=False) for _ in range(int((kinds == 3).sum()))]
+    seen = set()
+    for subset in (np.arange(300), np.sort(rng.choice(300, 150, replace=False))):
+        alive = rng.random(300) > 0.1
+        while (want := _reference_check(rest, tets[subset], alive[subset])) is not None:
+            kind, j = want
+            message = {1: "names a node outside", 2: "repeats a node", 3: "(inverted|zero-volume) at rest"}[kind]
+            with pytest.raises(SimulationError, match=rf"^tet {int(subset[j])} = .*{message}"):
+                check_tets(rest, tets, alive, subset)
+            seen.add(kind)
+            alive[subset[j]] = False  # the next one
+        check_tets(rest, tets, alive, subset)  # none left: no error
+    assert seen == {1, 2, 3}
+
+
 def test_non_finite_state_is_refused():
     mesh = block()
     sim = simulation(mesh)

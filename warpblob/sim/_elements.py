@@ -92,32 +92,45 @@ def lame(young: np.ndarray, poisson: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return mu, lam
 
 
-def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.ndarray) -> None:
-    """SimulationError for a live tet among ``ids`` that names a bad node or is inverted or flat at rest."""
+def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.ndarray, threads=None) -> None:
+    """SimulationError for a live tet among ``ids`` that names a bad node or is inverted or flat at rest.
+
+    One kernel thread per tet (:func:`~warpblob.sim._kernels.check_tets_kernel`, float64); the error names
+    the first tet of the first kind found, in this order: a node outside ``[0, N)``, a repeated node, an
+    inverted or flat tet (volume at most :data:`DEGENERATE_VOLUME` times its longest edge cubed).
+    """
     N = len(rest)
-    sub = tets[ids]
-    live = alive[ids]
-    out = np.flatnonzero(live & ((sub < 0) | (sub >= N)).any(axis=1))
-    if out.size:
-        t = int(ids[out[0]])
-        raise SimulationError(f"tet {t} = {tets[t].tolist()} names a node outside [0, {N})")
-    s = np.sort(sub, axis=1)
-    twice = np.flatnonzero(live & (s[:, 1:] == s[:, :-1]).any(axis=1))
-    if twice.size:
-        t = int(ids[twice[0]])
-        raise SimulationError(f"tet {t} = {tets[t].tolist()} repeats a node")
-    p = rest.astype(np.float64)[np.where(live[:, None], sub, 0)]
-    e = p[:, [1, 2, 3]] - p[:, [0]]
-    volume = np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
-    edges = np.concatenate([e, p[:, [2, 3, 3]] - p[:, [1, 1, 2]]], axis=1)
-    longest = np.sqrt((edges**2).sum(axis=2).max(axis=1))
-    bad = np.flatnonzero(live & (volume <= DEGENERATE_VOLUME * longest**3))
-    if bad.size:
-        j = bad[0]
+    ids = np.ascontiguousarray(ids, dtype=np.int32).ravel()
+    if not ids.size:
+        return
+    cpu = wp.get_device("cpu")
+    tets = np.ascontiguousarray(tets, dtype=np.int32).reshape(-1, 4)
+    code = np.empty(len(ids), dtype=np.int32)
+    volume = np.empty(len(ids), dtype=np.float64)
+    longest = np.empty(len(ids), dtype=np.float64)
+    launch(k.check_tets_kernel, len(ids),
+           [wp.array(np.asarray(rest, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=cpu),
+            wp.array(tets, dtype=wp.vec4i, device=cpu, copy=False),
+            wp.array(np.ascontiguousarray(alive, dtype=bool).view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+            wp.array(ids, dtype=wp.int32, device=cpu, copy=False), wp.float64(DEGENERATE_VOLUME)],
+           [wp.array(a, dtype=d, device=cpu, copy=False) for a, d in
+            ((code, wp.int32), (volume, wp.float64), (longest, wp.float64))], cpu, threads,
+           min_chunk=8192)  # fmt: skip
+    if not code.any():
+        return
+    for kind in (1, 2, 3):
+        where = np.flatnonzero(code == kind)
+        if not where.size:
+            continue
+        j = int(where[0])
         t = int(ids[j])
-        kind = "inverted" if volume[j] < 0 else "zero-volume"
+        if kind == 1:
+            raise SimulationError(f"tet {t} = {tets[t].tolist()} names a node outside [0, {N})")
+        if kind == 2:
+            raise SimulationError(f"tet {t} = {tets[t].tolist()} repeats a node")
+        what = "inverted" if volume[j] < 0 else "zero-volume"
         raise SimulationError(
-            f"tet {t} = {tets[t].tolist()} is {kind} at rest: volume {volume[j]:.6g} "
+            f"tet {t} = {tets[t].tolist()} is {what} at rest: volume {volume[j]:.6g} "
             f"(longest edge {longest[j]:.6g}); rest tets must be positively oriented"
         )
 
@@ -156,7 +169,7 @@ class Elements:
         self.volume = wp.zeros(0, dtype=float, device=device)
         self.rigid_host = np.zeros(self.tet_count, dtype=bool)
         ids = np.arange(self.tet_count, dtype=np.int32)
-        check_tets(self.rest_host, self.tets_host, self.alive_host, ids)
+        check_tets(self.rest_host, self.tets_host, self.alive_host, ids, threads)
         self._rebuild(ids)
 
     @property
@@ -251,7 +264,7 @@ class Elements:
             h[ids] = sub
             mats[name] = h
         rest_h = self.rest_host if rest is None else np.ascontiguousarray(rest, dtype=np.float32)
-        check_tets(rest_h, tets_h, alive_h, ids)
+        check_tets(rest_h, tets_h, alive_h, ids, self.threads)
         self.rest_host, self.tets_host, self.alive_host = rest_h, tets_h, alive_h
         self.young_host, self.poisson_host, self.density_host = mats["young"], mats["poisson"], mats["density"]
         self.rigid_host = grow(self.rigid_host, False)

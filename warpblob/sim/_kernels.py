@@ -89,6 +89,49 @@ def linear_stress(G: wp.mat33, mu: float, lam: float) -> wp.mat33:
 
 
 @wp.kernel(enable_backward=False)
+def check_tets_kernel(
+    rest: wp.array(dtype=wp.vec3d),
+    tets: wp.array(dtype=wp.vec4i),
+    alive: wp.array(dtype=wp.uint8),
+    ids: wp.array(dtype=wp.int32),
+    flat: wp.float64,
+    offset: int,
+    code: wp.array(dtype=wp.int32),
+    volume: wp.array(dtype=wp.float64),
+    longest: wp.array(dtype=wp.float64),
+):
+    """The rest check of listed tet ``i`` (``t = ids[i]``), in float64: ``code[i]`` 0 (valid, or dead), 1 (a
+    node outside ``[0, N)``), 2 (a node repeated), 3 (signed volume ``<= flat * longest edge^3``: inverted
+    or flat), with its volume and longest edge where the nodes are valid."""
+    i = wp.tid() + offset
+    t = ids[i]
+    code[i] = 0
+    if alive[t] == wp.uint8(0):
+        return
+    n = tets[t]
+    N = rest.shape[0]
+    for a in range(4):
+        if n[a] < 0 or n[a] >= N:
+            code[i] = 1
+            return
+    if n[0] == n[1] or n[0] == n[2] or n[0] == n[3] or n[1] == n[2] or n[1] == n[3] or n[2] == n[3]:
+        code[i] = 2
+        return
+    p0 = rest[n[0]]
+    p1 = rest[n[1]]
+    p2 = rest[n[2]]
+    p3 = rest[n[3]]
+    v = wp.dot(p1 - p0, wp.cross(p2 - p0, p3 - p0)) / wp.float64(6.0)
+    sq = wp.max(wp.max(wp.length_sq(p1 - p0), wp.length_sq(p2 - p0)), wp.length_sq(p3 - p0))
+    sq = wp.max(sq, wp.max(wp.max(wp.length_sq(p2 - p1), wp.length_sq(p3 - p1)), wp.length_sq(p3 - p2)))
+    e = wp.sqrt(sq)
+    volume[i] = v
+    longest[i] = e
+    if v <= flat * e * e * e:
+        code[i] = 3
+
+
+@wp.kernel(enable_backward=False)
 def prepare_elements_kernel(
     rest: wp.array(dtype=wp.vec3),
     tets: wp.array(dtype=wp.vec4i),
