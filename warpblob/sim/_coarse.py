@@ -206,8 +206,8 @@ class CoarseSpace:
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
         pair_offsets[1:] = np.cumsum(np.bincount(pair_of_slot, minlength=len(pairs)))
 
-        def array(a, dtype=wp.int32):
-            return wp.array(a, dtype=dtype, device=dev)
+        def array(a, dtype=wp.int32):  # (on the CPU these fresh host arrays are used in place, not copied)
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=dev.is_cuda)
 
         self.node_aggregate = array(node_aggregate)
         self.aggregate_offsets, self.aggregate_nodes = array(offsets), array(order.astype(np.int32))
