@@ -129,6 +129,61 @@ def test_two_level_gives_the_same_step_as_block_jacobi(case, monkeypatch):
     assert d["residual"] <= TOLERANCE * 1.0001 and a.stats["relative_residual"] <= TOLERANCE * 1.0001, d
 
 
+def cut_beam(preconditioner: str = "two_level") -> tuple:
+    """The 8 x 2 x 2 beam, fixed at x = 0, cut through by a tilted plane near its middle (two pieces)."""
+    mesh = box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (8, 2, 2))
+    s = wb.TetStructure.from_tetmesh(mesh)
+    sim = wb.Simulation(s, young=1e7, poisson=0.3, density=1000.0, tolerance=TOLERANCE, max_iterations=500,
+                        fixed=mesh.nodes[:, 0] == 0.0, preconditioner=preconditioner)  # fmt: skip
+    result = wb.cut.cut(s, wb.cut.SweepSurface.plane((0.53, 0.1, 0.1), (1.0, 0.15, 0.1), 2.0), collect=False)
+    sim.apply_cut(result)
+    return sim, result
+
+
+def flood_pieces(tets: np.ndarray, node_count: int) -> np.ndarray:
+    """Connected pieces of the nodes through the tets, by a breadth-first flood (the reference)."""
+    neighbours = [set() for _ in range(node_count)]
+    for tet in tets:
+        for a in tet:
+            neighbours[a].update(int(b) for b in tet)
+    piece = np.full(node_count, -1)
+    for start in np.unique(tets):
+        if piece[start] >= 0:
+            continue
+        piece[start], queue = piece.max() + 1, [int(start)]
+        while queue:
+            for b in neighbours[queue.pop()]:
+                if piece[b] < 0:
+                    piece[b] = piece[start]
+                    queue.append(b)
+    return piece
+
+
+def test_aggregates_hold_one_piece_each_after_a_cut(monkeypatch):
+    """After a cut severs the beam, no aggregate of the coarse space holds nodes of both pieces (an aggregate
+    of a lattice cell the cut crosses is split in two, one per side), and the two-level step still agrees
+    with block-Jacobi's."""
+    monkeypatch.setattr(_coarse, "AGGREGATE_NODES", 12)
+    sim, result = cut_beam()
+    assert result.components == 2
+    live = sim.elements.tets_host[sim.elements.alive_host]
+    piece = flood_pieces(live, sim.node_count)
+    assert piece.max() == 1
+    aggregate = sim._solver.coarse.node_aggregate.numpy()
+    assert aggregate.max() >= 3
+    for g in range(int(aggregate.max()) + 1):
+        assert len(np.unique(piece[aggregate == g])) == 1, g
+    # a lattice cell the cut crosses makes an aggregate on each side: more aggregates than cells
+    cells = np.floor((sim.elements.rest_host[piece >= 0] - sim.elements.rest_host[piece >= 0].min(axis=0))
+                     / sim._solver.coarse.cell).astype(np.int64)  # fmt: skip
+    assert int(aggregate.max()) + 1 > len(np.unique(cells, axis=0))
+
+    a, b = same_step(lambda kind: cut_beam(kind)[0], ("block_jacobi", "two_level"))
+    d = disagreement(a, b)
+    assert d["motion"] > 0 and d["velocity"] <= 1e-3 and d["position"] <= 1e-3, d
+    assert d["residual"] <= TOLERANCE * 1.0001 and a.stats["relative_residual"] <= TOLERANCE * 1.0001, d
+
+
 def test_two_level_cuts_the_cg_iterations_on_a_stiff_beam():
     # Block-Jacobi PCG needs O(sqrt(kappa)) iterations with kappa ~ (L / h)^2 on a stiffness-dominated system:
     # its slowest error is the bending of the whole beam. The rigid modes of aggregates of size H capture that

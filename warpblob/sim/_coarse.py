@@ -5,7 +5,10 @@ Block-Jacobi reaches only the high-frequency error of the implicit system
 ``dt = 1/60``) the slow error is the bending of the whole body, which CG
 then needs hundreds of iterations to resolve. The coarse space captures
 it: nodes are grouped into aggregates (the cells of a lattice over their
-rest positions, :func:`aggregate`), and each aggregate carries its six
+rest positions, each cell split by connected piece, :func:`aggregate`:
+after a cut severs the body, an aggregate across the cut would tie the
+two sides' modes together; split, the cut tumor of ``warpblob demo`` takes
+26% fewer CG iterations over its 108 steps, 7,544 -> 5,605), and each aggregate carries its six
 rigid modes, three translations and three linearized rotations about its
 centroid, as in smoothed aggregation (Vanek, Mandel & Brezina 1996, here
 unsmoothed). A bent body is, aggregate by aggregate, nearly rigid, so its
@@ -66,10 +69,10 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from ..mesh._structure import _unique_inverse
+from ..mesh._structure import _connected, _unique_inverse
 from . import _kernels as k
 
-__all__ = ["CoarseSpace", "aggregate", "factor"]
+__all__ = ["CoarseSpace", "aggregate", "factor", "node_pieces"]
 
 #: nodes per aggregate the lattice aims at, and the most aggregates (6 coarse unknowns each, stored dense)
 AGGREGATE_NODES = 64
@@ -86,26 +89,35 @@ SHIFT = 1e-6
 COUPLE_GRAIN = 1024
 
 
-def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int) -> tuple[np.ndarray, int, float]:
-    """Group the ``active`` nodes by the cell of a cubic lattice over their rest positions.
+def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int,
+              pieces: np.ndarray | None = None) -> tuple[np.ndarray, int, float]:  # fmt: skip
+    """Group the ``active`` nodes by the cell of a cubic lattice over their rest positions, and by piece.
 
-    The cell size is set so that about ``active.sum() / nodes`` cells are
-    occupied (at most ``limit``).
+    The cell size is set so that about ``active.sum() / nodes`` aggregates
+    are made (at most ``limit``). With ``pieces`` an aggregate holds the
+    nodes of one cell and one piece: a cell that a cut crosses gives one
+    aggregate per side, whose rigid modes move the two sides apart (one
+    aggregate across both would tie their modes together, and CG needs
+    about twice the iterations once the pieces move apart).
 
     Args:
         rest: (N, 3) rest positions.
         active: (N,) bool, the nodes that take part (the others get -1).
         nodes: nodes per aggregate to aim at.
         limit: most aggregates.
+        pieces: (N,) int, the connected piece of each active node (>= 0), or None (one piece).
 
     Returns:
         ``(node_aggregate (N,) int32, aggregate_count, cell_size)``; aggregates
-        are numbered in lexicographic order of their cells, the longest axis first.
+        are numbered in lexicographic order of their cells, the longest axis first
+        (then by piece).
     """
     out = np.full(len(rest), -1, dtype=np.int32)
     pts = np.asarray(rest, dtype=np.float64)[active]
     if len(pts) == 0:
         return out, 0, 1.0
+    piece = np.zeros(len(pts), dtype=np.int64) if pieces is None else np.asarray(pieces, dtype=np.int64)[active]
+    count = int(piece.max()) + 1
     lo = pts.min(axis=0)
     span = pts.max(axis=0) - lo
     extent = float(span.max()) or 1.0
@@ -119,7 +131,7 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int) -
     def cells(h):
         c = np.floor((pts[:, axes] - lo[axes]) / h).astype(np.int64)
         width = c.max(axis=0) + 1
-        return _unique_inverse((c[:, 0] * width[1] + c[:, 1]) * width[2] + c[:, 2])
+        return _unique_inverse(((c[:, 0] * width[1] + c[:, 1]) * width[2] + c[:, 2]) * count + piece)
 
     # the occupied cells of a lattice scale about as size^-3: two corrections land near the aim
     for _ in range(2):
@@ -130,6 +142,15 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int) -
     _, inverse = cells(size)
     out[active] = inverse.ravel().astype(np.int32)
     return out, int(inverse.max()) + 1, size
+
+
+def node_pieces(elements) -> np.ndarray:
+    """(N,) int32 connected piece of every node (nodes joined through the live tets; -1: in no live tet)."""
+    e = elements
+    sub = e.tets_host[e.alive_host].astype(np.int64)
+    used = np.zeros(e.node_count, dtype=bool)
+    used[sub.ravel()] = True
+    return _connected(e.node_count, np.repeat(sub[:, 0], 3), sub[:, 1:].ravel(), used)
 
 
 def factor(A: np.ndarray, first: np.ndarray, device) -> tuple[np.ndarray, np.ndarray]:
@@ -180,7 +201,8 @@ class CoarseSpace:
         self.elements, self.axes, self.threads = e, axes, threads
         N, T = e.node_count, e.tet_count
         mass = e.mass.numpy()
-        node_aggregate, G, self.cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES)
+        node_aggregate, G, self.cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES,
+                                                 pieces=node_pieces(e))  # fmt: skip
         self.aggregate_count, self.size = G, 6 * G
         order = np.argsort(node_aggregate, kind="stable")
         order = order[node_aggregate[order] >= 0]
