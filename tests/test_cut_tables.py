@@ -1,17 +1,21 @@
-"""The generated cut tables, walked exhaustively: every code, every global node order, random and degenerate tets."""
+"""The generated cut tables, walked exhaustively: every code, every global node order, random and degenerate tets.
+
+The walk checks the generator's own output (``_build``, not a cached file); the cache is checked apart: the
+tables :func:`cut_tables` reads from it are those the generator makes, and a damaged file is built anew."""
 
 import itertools
 from collections import Counter, defaultdict
+from dataclasses import fields
 
 import numpy as np
 import pytest
 
-from warpblob.cut import cut_tables, rank_index
+from warpblob.cut import _tables, cut_tables, rank_index
 from warpblob.cut._tables import RANK_PERMUTATIONS, REF_CELL, REF_FACE, REF_NODE, REF_SPLIT
 from warpblob.mesh._tetmesh import TET_EDGES, TET_FACES
 
 SNAP = 0.2
-TABLES = cut_tables()
+TABLES = _tables._build()
 ENTRIES = [(int(TABLES.edge_code[e]), int(TABLES.node_code[e]), e) for e in range(len(TABLES.kind))]
 EDGE_OF = {frozenset(map(int, e)): j for j, e in enumerate(TET_EDGES)}
 
@@ -242,3 +246,37 @@ def test_rank_index_matches_permutations():
 def test_cut_tables_unknown_code_is_refused():
     with pytest.raises(ValueError, match="cannot occur"):
         TABLES.subtets(0b000001, 0b0001)
+
+
+def _same_tables(a, b) -> None:
+    for f in fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        assert x.dtype == y.dtype and np.array_equal(x, y), f.name
+
+
+def test_cached_tables_are_the_generated_ones(tmp_path, monkeypatch):
+    """A first use writes the cache file, a later one reads it: both the generator's tables, field by field
+    and dtype by dtype; a damaged file is built anew and rewritten; an unwritable folder only skips the file."""
+    _same_tables(cut_tables(), TABLES)
+    path = tmp_path / "tables.npz"
+    monkeypatch.setattr(_tables, "_cache_file", lambda: path)
+    built = []
+
+    def build():
+        built.append(1)
+        return _tables._build()
+
+    _same_tables(_tables._cached(build), TABLES)  # no file: built, written
+    assert path.is_file() and len(built) == 1
+    _same_tables(_tables._cached(build), TABLES)  # read back, not built
+    assert len(built) == 1
+    path.write_bytes(b"not a table file")
+    _same_tables(_tables._cached(build), TABLES)  # damaged: built, rewritten
+    assert len(built) == 2
+    _same_tables(_tables._cached(build), TABLES)
+    assert len(built) == 2
+    blocked = tmp_path / "file" / "tables.npz"
+    (tmp_path / "file").write_text("a file where the folder would be")
+    monkeypatch.setattr(_tables, "_cache_file", lambda: blocked)
+    _same_tables(_tables._cached(build), TABLES)
+    assert len(built) == 3 and list(tmp_path.glob("*.tmp")) == []

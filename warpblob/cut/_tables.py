@@ -81,8 +81,12 @@ back by that corner's side of the sweep.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
-from dataclasses import dataclass
+import os
+import tempfile
+from dataclasses import dataclass, fields
+from pathlib import Path
 
 import numpy as np
 
@@ -402,7 +406,8 @@ _TABLES: CutTables | None = None
 
 
 def cut_tables() -> CutTables:
-    """The generated tables (built on first use, then cached).
+    """The generated tables: built on first use (about half a second), then kept in memory and, as a file
+    beside Warp's kernel cache, for later processes (:func:`_cached`).
 
     Example:
         >>> t = cut_tables()
@@ -411,8 +416,47 @@ def cut_tables() -> CutTables:
     """
     global _TABLES
     if _TABLES is None:
-        _TABLES = _build()
+        _TABLES = _cached(_build)
     return _TABLES
+
+
+def _cache_file() -> Path | None:
+    """The tables' file in Warp's kernel cache folder, named by a hash of this module's source (the
+    generator): an edited generator never reads an older file. None where Warp keeps no cache folder."""
+    import warp as wp
+
+    wp.init()
+    folder = wp.config.kernel_cache_dir
+    if not folder:
+        return None
+    key = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    return Path(folder) / f"warpblob_cut_tables_{key}.npz"
+
+
+def _cached(build) -> CutTables:
+    """The tables from their cache file, else ``build()`` written there (to a temporary name, then renamed:
+    concurrent processes never read half a file); a file that cannot be read is built anew."""
+    path = _cache_file()
+    names = [f.name for f in fields(CutTables)]
+    if path is not None and path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return CutTables(**{name: data[name] for name in names})
+        except (OSError, ValueError, KeyError):
+            pass
+    tables = build()
+    if path is not None:
+        tmp = None
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, **{name: getattr(tables, name) for name in names})
+            os.replace(tmp, path)
+        except OSError:  # (a read-only cache: the tables are built in each process)
+            if tmp is not None and os.path.exists(tmp):
+                os.remove(tmp)
+    return tables
 
 
 def _build() -> CutTables:
