@@ -184,6 +184,21 @@ def test_aggregates_hold_one_piece_each_after_a_cut(monkeypatch):
     assert d["residual"] <= TOLERANCE * 1.0001 and a.stats["relative_residual"] <= TOLERANCE * 1.0001, d
 
 
+def test_a_cut_that_severs_nothing_keeps_the_aggregates(monkeypatch):
+    """A cut that leaves one piece: the rebuild takes the structure's count of one piece and skips counting
+    the nodes' pieces; its aggregates are those counting them gives."""
+    monkeypatch.setattr(_coarse, "AGGREGATE_NODES", 12)
+    mesh = box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (8, 2, 2))
+    s = wb.TetStructure.from_tetmesh(mesh)
+    sim = wb.Simulation(s, young=1e7, poisson=0.3, density=1000.0, fixed=mesh.nodes[:, 0] == 0.0)
+    # a notch: the plane cut only where the blade's square reaches (half the beam's depth)
+    result = wb.cut.cut(s, wb.cut.SweepSurface.plane((0.53, 0.1, 0.2), (1.0, 0.0, 0.0), 0.16), collect=False)
+    sim.apply_cut(result)
+    assert result.tets_added > 0 and result.components == 1 and s._known_pieces() == 1
+    counted = _coarse.CoarseSpace(sim.elements, sim._solver.coarse_axes)
+    np.testing.assert_array_equal(sim._solver.coarse.node_aggregate.numpy(), counted.node_aggregate.numpy())
+
+
 def test_two_level_cuts_the_cg_iterations_on_a_stiff_beam():
     # Block-Jacobi PCG needs O(sqrt(kappa)) iterations with kappa ~ (L / h)^2 on a stiffness-dominated system:
     # its slowest error is the bending of the whole beam. The rigid modes of aggregates of size H capture that

@@ -185,6 +185,8 @@ class CoarseSpace:
         elements: the :class:`~warpblob.sim._elements.Elements`.
         axes: (N,) vec3 the free axes of the step's filter (``S``), written by the assembly.
         threads: CPU threads (None: the default).
+        one_piece: the live tets are known to form one piece (the caller counted them): the aggregates
+            are then not split by piece, and the pieces are not counted (:func:`node_pieces`).
 
     Attributes:
         aggregate_count: G; ``size`` = 6 G coarse unknowns; ``cell``: the lattice's cell size (the mode
@@ -195,14 +197,14 @@ class CoarseSpace:
             :meth:`refresh`, ``refreshes`` their count.
     """
 
-    def __init__(self, elements, axes: wp.array, threads=None):
+    def __init__(self, elements, axes: wp.array, threads=None, one_piece: bool = False):
         t0 = time.perf_counter()
         e, dev = elements, elements.device
         self.elements, self.axes, self.threads = e, axes, threads
         N, T = e.node_count, e.tet_count
         mass = e.mass.numpy()
         node_aggregate, G, self.cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES,
-                                                 pieces=node_pieces(e))  # fmt: skip
+                                                 pieces=None if one_piece else node_pieces(e))  # fmt: skip
         self.aggregate_count, self.size = G, 6 * G
         order = np.argsort(node_aggregate, kind="stable")
         order = order[node_aggregate[order] >= 0]

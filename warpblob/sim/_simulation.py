@@ -320,8 +320,11 @@ class Simulation:
         self._moved = wp.zeros(N, dtype=wp.vec3, device=dev)
         self._flags = wp.zeros(N, dtype=wp.uint8, device=dev)
         self._states = [ElementState(T, N, dev), ElementState(T, N, dev)]
+        # a structure whose cells are known to form one piece (through faces, so through nodes too) spares the
+        # coarse space its count of the pieces
+        one_piece = self._structure is not None and self._structure._known_pieces() == 1
         self._solver = ImplicitSolver(e, self._flags, self._states, self.threads, self.linear_solver,
-                                      self.preconditioner)  # fmt: skip
+                                      self.preconditioner, one_piece)  # fmt: skip
         blocks = block_count(N, dev)
         self._check_bad = wp.zeros(blocks, dtype=wp.int32, device=dev)
         self._check_sums = wp.zeros((len(k.CHECK_ROWS), blocks), dtype=wp.float64, device=dev)

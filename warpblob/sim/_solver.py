@@ -217,6 +217,7 @@ class ImplicitSolver:
         linear_solver: ``"pcg"`` (the fused kernels here) or ``"warp"`` (``warp.optim.linear.cg``).
         preconditioner: ``"two_level"`` (block-Jacobi plus the coarse correction of
             :mod:`warpblob.sim._coarse`) or ``"block_jacobi"``; both linear solvers use it.
+        one_piece: the live tets are known to form one piece (the coarse space need not count them).
 
     Attributes (Warp arrays the contact pass writes, zero without contact):
         ``contact_force`` (N,) vec3 node forces, ``contact_weight`` (N,) the
@@ -226,7 +227,7 @@ class ImplicitSolver:
     """
 
     def __init__(self, elements, flags: wp.array, states, threads=None, linear_solver: str = "pcg",
-                 preconditioner: str = "two_level"):  # fmt: skip
+                 preconditioner: str = "two_level", one_piece: bool = False):  # fmt: skip
         self.elements = elements
         self.flags = flags
         self.threads = threads
@@ -277,7 +278,7 @@ class ImplicitSolver:
                            for parity in (0, 1)]  # fmt: skip
         self._coefficients = None
         self._grain = grain
-        self.coarse = CoarseSpace(e, self.coarse_axes, th) if preconditioner == "two_level" else None
+        self.coarse = CoarseSpace(e, self.coarse_axes, th, one_piece) if preconditioner == "two_level" else None
         self.rigid = None
         self._coarse_key, self._coarse_age = None, 0
         if self.coarse is not None:
