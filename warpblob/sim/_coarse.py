@@ -137,9 +137,10 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int,
     for _ in range(2):
         occupied = len(cells(size)[0])
         size *= (occupied / want) ** (1.0 / 3.0)
-    while len(cells(size)[0]) > limit:
+    uniq, inverse = cells(size)
+    while len(uniq) > limit:
         size *= 1.1
-    _, inverse = cells(size)
+        uniq, inverse = cells(size)
     out[active] = inverse.ravel().astype(np.int32)
     return out, int(inverse.max()) + 1, size
 
