@@ -221,11 +221,10 @@ class CoarseSpace:
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
         start = np.zeros(T + 1, dtype=np.int64)
         np.cumsum(squares.numpy(), out=start[1:])
-        pair_slot = np.empty(16 * T, dtype=np.int32)
         slot_code = np.empty(int(start[-1]), dtype=np.int64)
-        launch(k.tet_pair_slots_kernel, T, [tets_wp, alive_wp, aggregate_wp, wp.array(start, dtype=wp.int64,
-               device=dev), int(G)], [wp.array(pair_slot, dtype=wp.int32, device=dev, copy=False),
-               wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
+        start_wp = wp.array(start, dtype=wp.int64, device=dev)
+        launch(k.tet_pair_slots_kernel, T, [tets_wp, alive_wp, aggregate_wp, start_wp, int(G)],
+               [wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
         pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's; codes below G^2: by marks)
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
@@ -236,7 +235,8 @@ class CoarseSpace:
 
         self.node_aggregate = array(node_aggregate)
         self.aggregate_offsets, self.aggregate_nodes = array(offsets), array(order.astype(np.int32))
-        self.pair_slot = array(pair_slot.ravel())
+        # a tet's slots are found again from these by the coupling kernel (no (16 T,) table of them)
+        self.slot_start, self.tet_alive = start_wp, alive_wp
         self.pair_offsets = array(pair_offsets)
         # (a stable sort of narrow keys: numpy's radix sort where they fit 16 bits)
         narrow = pair_of_slot.astype(np.uint16) if len(pairs) <= 1 << 16 else pair_of_slot
@@ -289,7 +289,8 @@ class CoarseSpace:
         wp.copy(self.reference, self.axes)
         self.slots.zero_()
         launch(k.couple_tets_kernel, e.tet_count,
-               [e.tets, e.volume, e.mu, e.lam, rotated, self.axes, self.node_mode, self.pair_slot, float(c_stiff)],
+               [e.tets, e.volume, e.mu, e.lam, rotated, self.axes, self.node_mode, self.tet_alive,
+                self.node_aggregate, self.slot_start, float(c_stiff)],
                [self.slots], dev, th, min_chunk=COUPLE_GRAIN)  # fmt: skip
         wp.launch(k.assemble_coarse_kernel, self.pair_aggregates.shape[0],
                   inputs=[self.pair_offsets, self.pair_slots, self.pair_aggregates, self.slots, self.aggregate_offsets,

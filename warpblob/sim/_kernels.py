@@ -960,6 +960,30 @@ def frame_aggregates_kernel(
         node_mode[i] = (x[i] - c) / scale
 
 
+@wp.func
+def _corner_groups(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
+                   node_aggregate: wp.array(dtype=wp.int32), t: int) -> wp.vec4i:  # fmt: skip
+    """Per corner of tet ``t``: the number of its aggregate among the tet's distinct aggregates in order of
+    first appearance; ``-1`` everywhere for a dead tet or one with a corner in no aggregate."""
+    c = tets[t]
+    g = wp.vec4i(-1, -1, -1, -1)
+    if alive[t] == wp.uint8(0):
+        return g
+    a = wp.vec4i(node_aggregate[c[0]], node_aggregate[c[1]], node_aggregate[c[2]], node_aggregate[c[3]])
+    if a[0] < 0 or a[1] < 0 or a[2] < 0 or a[3] < 0:
+        return g
+    n = int(0)
+    for i in range(4):
+        for j in range(i + 1):
+            if g[i] < 0:
+                if j == i:
+                    g[i] = n
+                    n += 1
+                elif a[j] == a[i]:
+                    g[i] = g[j]
+    return g
+
+
 @wp.kernel(enable_backward=False)
 def couple_tets_kernel(
     tets: wp.array(dtype=wp.vec4i),
@@ -969,16 +993,19 @@ def couple_tets_kernel(
     rotated: wp.array(dtype=wp.mat33),
     axes: wp.array(dtype=wp.vec3),
     node_mode: wp.array(dtype=wp.vec3),
-    pair_slot: wp.array(dtype=wp.int32),
+    alive: wp.array(dtype=wp.uint8),
+    node_aggregate: wp.array(dtype=wp.int32),
+    slot_start: wp.array(dtype=wp.int64),
     c_stiff: float,
     offset: int,
     slots: wp.array(dtype=wp.spatial_matrix),
 ):
     """Per tet, ``c_stiff Phi_a^T S_a K'_ab S_b Phi_b`` for its 16 corner pairs, summed into its slots.
 
-    ``pair_slot[16 t + 4 a + b]`` is the slot of the aggregate pair of corners
-    ``(a, b)``; a tet owns its slots (zeroed before), so the sums need no
-    atomics. With ``K'_ab = V (mu (n_a . n_b) I + mu n_b n_a^T + lambda n_a n_b^T)``
+    The slot of corners ``(a, b)`` is ``slot_start[t] + g_a u + g_b``, with
+    ``g`` the corners' groups (:func:`_corner_groups`) and ``u`` their count
+    (:func:`tet_pair_slots_kernel`'s layout); a tet owns its slots (zeroed
+    before), so the sums need no atomics. With ``K'_ab = V (mu (n_a . n_b) I + mu n_b n_a^T + lambda n_a n_b^T)``
     (:func:`multiply_elements_kernel`) and ``U = S Phi``, the block is
     ``V (mu (n_a . n_b) U_a^T U_b + mu (U_a^T n_b)(U_b^T n_a)^T + lambda (U_a^T n_a)(U_b^T n_b)^T)``;
     the pair ``(b, a)`` gets its transpose.
@@ -987,6 +1014,11 @@ def couple_tets_kernel(
     V = volume[t]
     if V == 0.0:
         return
+    g = _corner_groups(tets, alive, node_aggregate, t)
+    u = wp.max(wp.max(g[0], g[1]), wp.max(g[2], g[3])) + 1
+    if u == 0:
+        return
+    first = int(slot_start[t])
     tet = tets[t]
     M = rotated[t]
     m = mu[t]
@@ -1007,10 +1039,10 @@ def couple_tets_kernel(
                 if sa[k] * sb[k] != 0.0:
                     W += c * wp.outer(mode_row(da, k), mode_row(db, k))
             W = (c_stiff * V) * W
-            ab = pair_slot[16 * t + 4 * a + b]
+            ab = first + g[a] * u + g[b]
             slots[ab] = slots[ab] + W
             if b != a:
-                ba = pair_slot[16 * t + 4 * b + a]
+                ba = first + g[b] * u + g[a]
                 slots[ba] = slots[ba] + wp.transpose(W)
 
 
@@ -1240,30 +1272,6 @@ def check_step_kernel(
     partials[5, blk] = contact
 
 
-@wp.func
-def _corner_groups(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
-                   node_aggregate: wp.array(dtype=wp.int32), t: int) -> wp.vec4i:  # fmt: skip
-    """Per corner of tet ``t``: the number of its aggregate among the tet's distinct aggregates in order of
-    first appearance; ``-1`` everywhere for a dead tet or one with a corner in no aggregate."""
-    c = tets[t]
-    g = wp.vec4i(-1, -1, -1, -1)
-    if alive[t] == wp.uint8(0):
-        return g
-    a = wp.vec4i(node_aggregate[c[0]], node_aggregate[c[1]], node_aggregate[c[2]], node_aggregate[c[3]])
-    if a[0] < 0 or a[1] < 0 or a[2] < 0 or a[3] < 0:
-        return g
-    n = int(0)
-    for i in range(4):
-        for j in range(i + 1):
-            if g[i] < 0:
-                if j == i:
-                    g[i] = n
-                    n += 1
-                elif a[j] == a[i]:
-                    g[i] = g[j]
-    return g
-
-
 @wp.kernel(enable_backward=False)
 def tet_aggregate_counts_kernel(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
                                 node_aggregate: wp.array(dtype=wp.int32), offset: int,
@@ -1278,18 +1286,16 @@ def tet_aggregate_counts_kernel(tets: wp.array(dtype=wp.vec4i), alive: wp.array(
 @wp.kernel(enable_backward=False)
 def tet_pair_slots_kernel(tets: wp.array(dtype=wp.vec4i), alive: wp.array(dtype=wp.uint8),
                           node_aggregate: wp.array(dtype=wp.int32), start: wp.array(dtype=wp.int64),
-                          aggregates: int, offset: int, pair_slot: wp.array(dtype=wp.int32),
-                          slot_code: wp.array(dtype=wp.int64)):  # fmt: skip
-    """Per tet, its 16 corner pairs' slots ``start[t] + g_a u + g_b`` (0 for a dead tet or one outside) and
-    each slot's code ``aggregate_a * G + aggregate_b``."""
+                          aggregates: int, offset: int, slot_code: wp.array(dtype=wp.int64)):  # fmt: skip
+    """Per tet, the code ``aggregate_a * G + aggregate_b`` of each of its slots: corners ``(a, b)`` take slot
+    ``start[t] + g_a u + g_b`` (none for a dead tet or one outside; :func:`couple_tets_kernel` finds
+    them the same way)."""
     t = wp.tid() + offset
     g = _corner_groups(tets, alive, node_aggregate, t)
     u = wp.max(wp.max(g[0], g[1]), wp.max(g[2], g[3])) + 1
     c = tets[t]
-    for a in range(4):
-        for b in range(4):
-            slot = int(0)
-            if u > 0:
+    if u > 0:
+        for a in range(4):
+            for b in range(4):
                 slot = int(start[t]) + g[a] * u + g[b]
                 slot_code[slot] = wp.int64(node_aggregate[c[a]]) * wp.int64(aggregates) + wp.int64(node_aggregate[c[b]])
-            pair_slot[16 * t + 4 * a + b] = slot
