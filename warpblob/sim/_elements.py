@@ -308,13 +308,18 @@ class Elements:
             ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
                    [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
-        # corners of dead tets sort past the last node, out of every row
-        rows = np.where(self.alive_host[:, None], self.tets_host, N).astype(np.int32).ravel()
+        # corners of dead tets sort past the last node, out of every row; the second halves are the radix
+        # sort's scratch (not initialized); on the CPU the host arrays are used in place
         count = 4 * T
-        rows_wp = wp.zeros(2 * count, dtype=wp.int32, device=dev)
-        cols_wp = wp.zeros(2 * count, dtype=wp.int32, device=dev)
-        rows_wp.assign(np.concatenate([rows, np.zeros(count, dtype=np.int32)]))
-        cols_wp.assign(np.concatenate([np.arange(count, dtype=np.int32), np.zeros(count, dtype=np.int32)]))
+        rows = np.empty(2 * count, dtype=np.int32)
+        corner_nodes = rows[:count].reshape(T, 4)
+        corner_nodes[:] = self.tets_host
+        corner_nodes[~self.alive_host] = N
+        cols = np.empty(2 * count, dtype=np.int32)
+        cols[:count] = np.arange(count, dtype=np.int32)
+        copy = wp.get_device(dev).is_cuda
+        rows_wp = wp.array(rows, dtype=wp.int32, device=dev, copy=copy)
+        cols_wp = wp.array(cols, dtype=wp.int32, device=dev, copy=copy)
         offsets, corners = csr(rows_wp, cols_wp, count, N, dev, self.threads)
         self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
         self.node_corners = wp.array(corners, dtype=wp.int32, device=dev)
