@@ -1,4 +1,4 @@
-"""Host helpers shared by the kernel pipelines: stage clocks, memory checks, prefix sums, compaction."""
+"""Host helpers shared by the kernel pipelines: stage clocks, memory checks, prefix sums, compaction, kept buffers."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import warp as wp
 from ._errors import ResourceError
 from ._parallel import launch
 
-__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact"]
+__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room"]
 
 #: grid cells from which ``progress=None`` shows a bar (a job of seconds on 2 CPU cores)
 PROGRESS_CELLS = 8_000_000
@@ -147,3 +147,22 @@ def compact(flags: wp.array, device, threads=None) -> wp.array:
     out = wp.empty(total, dtype=wp.int32, device=device)
     launch(compact_kernel, flags.shape[0], [flags, offsets], [out], device, threads)
     return out
+
+
+#: a buffer kept between rebuilds gets this fraction more room than it needs when it is made (a cut adds tets)
+ROOM = 1 / 8
+
+
+def room(base: wp.array | None, n: int, dtype, device) -> tuple[wp.array, wp.array]:
+    """``(base, view)``: a view of the first ``n`` items of ``base`` where it is a 1-D array of ``dtype``
+    on ``device`` with room for them (kept: its values stay where they are), else of a new uninitialized
+    base with :data:`ROOM` more.
+
+    Example:
+        >>> base, view = room(None, 10, wp.float32, "cpu")
+        >>> view.shape, room(base, 8, wp.float32, "cpu")[0] is base
+        ((10,), True)
+    """
+    if base is None or base.dtype != dtype or base.device != wp.get_device(device) or base.shape[0] < n:
+        base = wp.empty(max(1, n + int(n * ROOM)), dtype=dtype, device=device)
+    return base, base[:n]

@@ -314,12 +314,16 @@ class Simulation:
         v = wp.array(velocities.astype(np.float32), dtype=wp.vec3, device=dev)
         self._x = [x, wp.zeros_like(x)]
         self._v = [v, wp.zeros_like(v)]
+        # a rebuild's element states keep their buffers: the current one becomes state 0 (its values for the
+        # tets that stay are then in place for the carried pass, see _refresh)
+        old = getattr(self, "_states", None)
+        reuse = (None, None) if old is None else (old[self._cur], old[1 - self._cur])
         self._cur = 0
         self._target = wp.clone(self._x[0])
         self._external = wp.zeros(N, dtype=wp.vec3, device=dev)
         self._moved = wp.zeros(N, dtype=wp.vec3, device=dev)
         self._flags = wp.zeros(N, dtype=wp.uint8, device=dev)
-        self._states = [ElementState(T, N, dev), ElementState(T, N, dev)]
+        self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
         # a structure whose cells are known to form one piece (through faces, so through nodes too) spares the
         # coarse space its count of the pieces
         one_piece = self._structure is not None and self._structure._known_pieces() == 1

@@ -71,6 +71,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch, submit, thread_count
+from .._stages import room
 from . import _kernels as k
 from ._coarse import COARSE_EVERY, CoarseSpace
 from ._rigid import norm_blocks_kernel
@@ -160,16 +161,18 @@ class ElementState:
     ``K'``; per corner (4 T,): ``corner_force`` and ``corner_block``.
     """
 
-    def __init__(self, T: int, N: int, device):
+    def __init__(self, T: int, N: int, device, reuse: ElementState | None = None):
+        """``reuse``: the state this one replaces (a rebuild's): its buffers are kept where they have room,
+        their first entries in place (:meth:`compute`'s ``carry`` of that state then copies nothing)."""
         # not zeroed (35 MB at 100K tets): each :meth:`compute` writes every entry (every tet, dead ones
         # included, and every node), and a state is read only after a compute
-        self.rotated = wp.empty(T, dtype=wp.mat33, device=device)
-        self.energy = wp.empty(T, dtype=float, device=device)
-        self.volume = wp.empty(T, dtype=float, device=device)
-        self.corner_force = wp.empty(4 * T, dtype=wp.vec3, device=device)
-        self.corner_block = wp.empty(4 * T, dtype=wp.vec4, device=device)
-        self.node_force = wp.empty(N, dtype=wp.vec3, device=device)
-        self.node_block = wp.empty(N, dtype=wp.mat33, device=device)
+        base = {} if reuse is None else reuse._base
+        self._base = {}
+        for name, n, dtype in (("rotated", T, wp.mat33), ("energy", T, float), ("volume", T, float),
+                               ("corner_force", 4 * T, wp.vec3), ("corner_block", 4 * T, wp.vec4),
+                               ("node_force", N, wp.vec3), ("node_block", N, wp.mat33)):  # fmt: skip
+            self._base[name], view = room(base.get(name), n, dtype, device)
+            setattr(self, name, view)
         self._every = wp.zeros(0, dtype=wp.int32, device=device)  # (no list: every tet)
 
     def compute(self, elements, x: wp.array, threads=None, *, carry=None) -> None:
@@ -190,7 +193,8 @@ class ElementState:
             count = min(int(count), e.tet_count)
             for a, b, per in zip(out, (old.rotated, old.corner_force, old.corner_block, old.energy, old.volume),
                                  (1, 4, 4, 1, 1)):  # fmt: skip
-                wp.copy(a, b, count=per * count)
+                if a.ptr != b.ptr:  # (a state rebuilt in its old buffers has them in place)
+                    wp.copy(a, b, count=per * count)
             ids = np.asarray(ids, dtype=np.int64).ravel()
             ids = np.union1d(ids[(ids >= 0) & (ids < count)], np.arange(count, e.tet_count)).astype(np.int32)
             if ids.size:
