@@ -41,6 +41,13 @@ is timed separately. The share of inverted (signed volume <= 0) tets among
 those it makes from the crossed tets is reported, next to warpblob's count
 of inverted tets over the whole cut mesh (checked: zero).
 
+Scalpel in a simulation (``sim`` rows): one ``wb.Simulation`` of each box and
+the scalpel's frames one after the other (``stroke_step(frame)``, frame 0 the
+``stroke`` case's strip, each next one 1/6 cm further along the heading):
+each frame's strip is cut (``collect=False``) and the simulation follows it
+(``apply_cut``: the FEM rebuild); median ms of the cut, of the rebuild and of
+both, over the frames after the first.
+
 Drill (``drill`` rows; issue 15): a bone plate ``box_tetmesh`` of
 [0, 4] x [0, 4] x [0, 0.6] (cm; about 10K, 66K, the thesis skull's size, and
 500K tets) and a trephine (``wb.tools.Drill``, radius 0.5 cm, N = 8, 16, 32
@@ -100,15 +107,43 @@ def box(tets: int) -> wb.TetMesh:
     return box_tetmesh((0, 0, 0), (SIDE,) * 3, (n, n, n))
 
 
-def stroke_step() -> SweepSurface:
-    """The strip one frame of the blade sweeps (module docstring)."""
+def stroke_step(frame: int = 0) -> SweepSurface:
+    """The strip frame ``frame`` of the blade sweeps (module docstring; frame 0 through the box's middle,
+    each later one a frame further along the heading)."""
     heading = np.radians(HEADING)
     d = np.array([np.cos(heading), np.sin(heading), 0.0])
     up = np.array([0.0, 0.0, 1.0])
     back = EDGE * (np.cos(np.radians(LEAN)) * up - np.sin(np.radians(LEAN)) * d)  # tip to back of the edge
-    centre = np.array([0.5 * SIDE, 0.5 * SIDE, SIDE + ABOVE - back[2]])
+    centre = np.array([0.5 * SIDE, 0.5 * SIDE, SIDE + ABOVE - back[2]]) + frame * SPEED * FRAME * d
     tip = centre + np.outer([-0.5, 0.5], SPEED * FRAME * d)
     return SweepSurface.from_blade(tip, tip + back)
+
+
+#: frames of the scalpel in a simulation (``sim`` rows), the first of them not timed
+SIM_FRAMES = 9
+
+
+def run_sim_stroke(mesh: wb.TetMesh) -> dict:
+    """The scalpel's frames in a simulation of the mesh: per frame the strip it sweeps is cut
+    (``collect=False``) and the simulation follows the cut (``apply_cut``), frame after frame on one
+    simulation; medians over the frames after the first (ms)."""
+    s = TetStructure.from_tetmesh(mesh)
+    sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0)
+    cut_ms, fem_ms = [], []
+    for frame in range(SIM_FRAMES):
+        sweep = stroke_step(frame)
+        t0 = time.perf_counter()
+        result = cut(s, sweep, collect=False)
+        t1 = time.perf_counter()
+        apply_cut(sim, result)
+        t2 = time.perf_counter()
+        if frame:
+            cut_ms.append(1e3 * (t1 - t0))
+            fem_ms.append(1e3 * (t2 - t1))
+    total = np.add(cut_ms, fem_ms)
+    return {"case": "sim", "tets": mesh.tet_count, "frames": SIM_FRAMES - 1, "cut_ms_median": float(np.median(cut_ms)),
+            "fem_ms_median": float(np.median(fem_ms)), "step_ms_median": float(np.median(total)),
+            "step_ms_max": float(total.max()), "tets_after": sim.tet_count}  # fmt: skip
 
 
 def run_warpblob(mesh: wb.TetMesh, sweep: SweepSurface, repeat: int) -> dict:
@@ -279,6 +314,13 @@ def main(argv=None):
     cols += [("vtk_inverted_share", "vtk inv", ".1%"), ("speedup_vs_vtk_clip", "x clip", ".2f")]
     cols += [("speedup_vs_vtk_clip_triangulated", "x clip+tri", ".2f")]
     print(table(rows, cols))
+    sims = [run_sim_stroke(box(int(size))) for size in args.sizes.split(",") if size]
+    print(table(sims, [("case", "case", "s"), ("tets", "tets", ",d"), ("frames", "frames", "d"),
+                       ("cut_ms_median", "cut ms", ".1f"), ("fem_ms_median", "fem ms", ".1f"),
+                       ("step_ms_median", "cut + fem ms", ".1f"), ("step_ms_max", "max", ".1f")]))  # fmt: skip
+    print(f"sim: the scalpel's frames in a simulation of the box (one simulation, {SIM_FRAMES - 1} frames after a "
+          "first): each frame's strip cut, then apply_cut; medians")  # fmt: skip
+    rows += sims
     drills = [run_drill(int(size), int(n)) for size in args.drill_sizes.split(",") if size
               for n in args.segments.split(",")]  # fmt: skip
     if args.skull:
