@@ -421,15 +421,19 @@ def cut_tables() -> CutTables:
 
 
 def _cache_file() -> Path | None:
-    """The tables' file in Warp's kernel cache folder, named by a hash of this module's source (the
-    generator): an edited generator never reads an older file. None where Warp keeps no cache folder."""
+    """The tables' file in Warp's kernel cache folder, named by a hash of what the generator reads: this
+    module's source and the tet's edge and face numbering (:data:`TET_EDGES`, :data:`TET_FACES`); an edited
+    generator never reads an older file. None where Warp keeps no cache folder."""
     import warp as wp
 
     wp.init()
     folder = wp.config.kernel_cache_dir
     if not folder:
         return None
-    key = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    key = hashlib.sha256(Path(__file__).read_bytes())
+    for table in (TET_EDGES, TET_FACES):
+        key.update(np.ascontiguousarray(table, dtype=np.int64).tobytes())
+    key = key.hexdigest()[:16]
     return Path(folder) / f"warpblob_cut_tables_{key}.npz"
 
 

@@ -145,13 +145,13 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int,
     return out, int(inverse.max()) + 1, size
 
 
-def node_pieces(elements) -> np.ndarray:
-    """(N,) int32 connected piece of every node (nodes joined through the live tets; -1: in no live tet)."""
-    e = elements
-    sub = e.tets_host[e.alive_host].astype(np.int64)
-    used = np.zeros(e.node_count, dtype=bool)
+def node_pieces(tets: np.ndarray, node_count: int) -> np.ndarray:
+    """(N,) int32 connected piece of every node, nodes joined through ``tets`` ((T, 4) node indices; -1 for a
+    node in none of them), numbered by lowest node (:func:`~warpblob.mesh._structure._connected`)."""
+    sub = np.asarray(tets, dtype=np.int64).reshape(-1, 4)
+    used = np.zeros(node_count, dtype=bool)
     used[sub.ravel()] = True
-    return _connected(e.node_count, np.repeat(sub[:, 0], 3), sub[:, 1:].ravel(), used)
+    return _connected(node_count, np.repeat(sub[:, 0], 3), sub[:, 1:].ravel(), used)
 
 
 def factor(A: np.ndarray, first: np.ndarray, device) -> tuple[np.ndarray, np.ndarray]:
@@ -204,8 +204,9 @@ class CoarseSpace:
         self.elements, self.axes, self.threads = e, axes, threads
         N, T = e.node_count, e.tet_count
         mass = e.mass.numpy()
+        pieces = None if one_piece else node_pieces(e.tets_host[e.alive_host], N)
         node_aggregate, G, self.cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES,
-                                                 pieces=None if one_piece else node_pieces(e))  # fmt: skip
+                                                 pieces=pieces)  # fmt: skip
         self.aggregate_count, self.size = G, 6 * G
         order = np.argsort(node_aggregate, kind="stable")
         order = order[node_aggregate[order] >= 0]

@@ -47,8 +47,8 @@ from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
 from ..mesh import TetMesh, TetStructure
-from ..mesh._structure import _connected
 from . import _kernels as k
+from ._coarse import node_pieces
 from ._contact import Contact, ToolContact
 from ._elements import Elements, material_values
 from ._embed import Embedding, embed, interpolate
@@ -464,10 +464,8 @@ class Simulation:
         free = np.zeros(N, dtype=bool)
         stats = {"pieces": 0, "anchored": 0, "free": 0, "tets": int(rigid_tets.sum()), "nodes": 0, "free_nodes": 0}
         if rigid_tets.any():
-            sub = e.tets_host[rigid_tets].astype(np.int64)
-            nodes = np.zeros(N, dtype=bool)
-            nodes[sub.ravel()] = True
-            label = _connected(N, np.repeat(sub[:, 0], 3), sub[:, 1:].ravel(), nodes)
+            label = node_pieces(e.tets_host[rigid_tets], N)
+            nodes = label >= 0
             count = int(label.max()) + 1
             anchored = np.zeros(count, dtype=bool)
             anchored[label[nodes & (self._fixed_mask | self._anchor_mask)]] = True
