@@ -142,6 +142,7 @@ def _cut_simulation():
 def test_element_pass_after_a_cut_is_the_full_pass():
     """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
     array equals a full pass at the same positions, bit for bit."""
+    from warpblob.sim._elements import Elements
     from warpblob.sim._solver import ElementState
 
     sim, r = _cut_simulation()
@@ -151,35 +152,122 @@ def test_element_pass_after_a_cut_is_the_full_pass():
     full.compute(e, sim._x[sim._cur], sim.threads)
     for name in ("rotated", "corner_force", "corner_block", "energy", "volume", "node_force", "node_block"):
         np.testing.assert_array_equal(getattr(sim._state, name).numpy(), getattr(full, name).numpy(), err_msg=name)
+    # the element data rebuilt for the changed tets and touched nodes only equal those built from scratch
+    assert e.touched_nodes is not None and 0 < len(e.touched_nodes) < e.node_count
+    fresh = Elements(e.rest_host, e.tets_host, e.alive_host, e.young_host, e.poisson_host, e.density_host,
+                     device=e.device)  # fmt: skip
+    for name in ("dm_inv", "volume", "mu", "lam", "mass", "node_offsets", "node_corners"):
+        np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(), err_msg=name)
 
 
-def test_coarse_slots_are_the_reference_layout():
-    """The coarse space's per-tet slots (kernels) against a numpy construction of the layout: per tet u^2
-    slots for its u distinct corner aggregates in order of first appearance, dead tets none, every slot
-    naming its aggregate pair (the coupling kernel that sums into them is checked through the coarse
-    matrix it assembles, against ``P^T A P``, in test_sim_solver.py)."""
-    sim, _ = _cut_simulation()
-    c, e = sim._solver.coarse, sim.elements
+def _reference_layout(c, e) -> tuple:
+    """numpy's per-tet slot layout of coarse space ``c`` on elements ``e``: per live tet (every corner in an
+    aggregate) u^2 slots for its u distinct corner aggregates in order of first appearance, from its first
+    slot; returns (corner aggregates (T, 4), live (T,), u (T,), slot (T, 4, 4))."""
     agg = c.node_aggregate.numpy().astype(np.int64)
-    G = c.aggregate_count
-    tets = e.tets_host.astype(np.int64)
-    corner = agg[tets]
+    corner = agg[e.tets_host.astype(np.int64)]
     live = e.alive_host & (corner >= 0).all(axis=1)
     rep = np.argmax(corner[:, :, None] == corner[:, None, :], axis=2)
     new = rep == np.arange(4)
     group = np.take_along_axis(np.cumsum(new, axis=1) - 1, rep, axis=1)
     u = np.where(live, new.sum(axis=1), 0)
-    start = np.concatenate([[0], np.cumsum(u * u)])
-    slot = np.where(live[:, None, None], start[:-1, None, None] + group[:, :, None] * u[:, None, None]
+    start = c.slot_start.numpy()[:-1]
+    slot = np.where(live[:, None, None], start[:, None, None] + group[:, :, None] * u[:, None, None]
                     + group[:, None, :], 0)  # fmt: skip
-    # the kernels find a tet's slots from its first slot and its corners' groups (the layout above)
-    np.testing.assert_array_equal(c.slot_start.numpy(), start)
-    assert c.slots.shape[0] == start[-1]
-    # each slot's pair: from the grouping by pair (pair_offsets / pair_slots / pair_aggregates)
+    return corner, live, u, slot
+
+
+def _check_grouping(c, corner, live, slot) -> None:
+    """Every slot is listed once in the grouping by pair, and each live tet's slot names its corners' pair."""
+    total = c.slots.shape[0]
+    listed = np.sort(c.pair_slots.numpy())
+    np.testing.assert_array_equal(listed, np.arange(total))
     pair_of_slot = np.repeat(np.arange(len(c.pair_aggregates)), np.diff(c.pair_offsets.numpy()))
-    code = np.empty(start[-1], dtype=np.int64)
+    code = np.empty(total, dtype=np.int64)
     code[c.pair_slots.numpy()] = pair_of_slot
     pa = c.pair_aggregates.numpy().astype(np.int64)
     t, a, b = np.nonzero(live[:, None, None] & np.ones((1, 4, 4), bool))
     np.testing.assert_array_equal(pa[code[slot[t, a, b]]], np.stack([corner[t, a], corner[t, b]], axis=1))
+
+
+def test_coarse_slots_are_the_reference_layout():
+    """A coarse space built on the cut elements: its per-tet slots (kernels) against a numpy construction of
+    the layout (_reference_layout), dense (dead tets none), every slot naming its aggregate pair (the
+    coupling kernel that sums into them is checked through the coarse matrix it assembles, against
+    ``P^T A P``, in test_sim_solver.py)."""
+    from warpblob.sim._coarse import CoarseSpace
+
+    sim, _ = _cut_simulation()
+    e = sim.elements
+    c = CoarseSpace(e, sim._solver.coarse_axes)
+    G = c.aggregate_count
+    corner, live, u, slot = _reference_layout(c, e)
+    # the kernels find a tet's slots from its first slot and its corners' groups (the layout above)
+    np.testing.assert_array_equal(c.slot_start.numpy(), np.concatenate([[0], np.cumsum(u * u)]))
+    _check_grouping(c, corner, live, slot)
     assert (~live).sum() > 0 and (u > 1).sum() > 0 and G > 1
+
+
+def test_a_cut_carries_the_coarse_space_over():
+    """A cut that severs nothing keeps the coarse space's aggregates (CoarseSpace.follow): old nodes keep
+    theirs, each new node takes its source's (a split point: the nearer end of its edge); the live tets' slots
+    do not overlap and are grouped by their pairs; the coarse matrix and its factor equal, bit for bit, those
+    of a coarse space laid out from scratch on the same aggregates; the next step converges."""
+    from warpblob.sim._coarse import CoarseSpace
+
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 0] == 0.0)
+    sim.step(2)
+    before = sim._solver.coarse.node_aggregate.numpy().copy()
+    s.set_positions(sim.positions)
+    a = np.array([[0.1, 0.23, 0.7], [0.8, 0.26, 0.7]])
+    r = cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.45)), collect=False)
+    assert r.components == 1 and r.tets_added > 0 and len(r.new_nodes) > 0
+    sim.apply_cut(r)
+    c, e = sim._solver.coarse, sim.elements
+    assert c.followed
+    agg = c.node_aggregate.numpy()
+    mass = e.mass.numpy()
+    old = len(before)
+    np.testing.assert_array_equal(agg[:old][mass[:old] > 0], before[mass[:old] > 0])
+    assert (agg[:old][mass[:old] <= 0] == -1).all()
+    src = np.where(r.node_weights < 0.5, r.node_sources[:, 0], r.node_sources[:, 1])
+    np.testing.assert_array_equal(agg[r.new_nodes], before[src])
+    corner, live, u, slot = _reference_layout(c, e)
+    starts = c.slot_start.numpy()[:-1][live]
+    order = np.argsort(starts)
+    ends = (starts + (u * u)[live])[order]
+    assert (ends[:-1] <= starts[order][1:]).all() and ends[-1] <= c.slots.shape[0]
+    _check_grouping(c, corner, live, slot)
+    # the coarse matrix on the same aggregates, laid out from scratch (dead tets without slots)
+    ref = CoarseSpace.laid_out(e, sim._solver.coarse_axes, agg, c.aggregate_count, c.cell)
+    assert ref.slots.shape[0] < c.slots.shape[0]
+    sim.step(1)  # (its assembly writes the filter's axes the coarse matrix reads)
+    assert sim.stats["relative_residual"] <= sim.tolerance * 1.0001
+    x, rotated = sim._x[sim._cur], sim._state.rotated
+    for space in (c, ref):
+        space.refresh(x, rotated, 1.3, 0.02)
+    np.testing.assert_array_equal(c.coarse.numpy(), ref.coarse.numpy())
+    np.testing.assert_array_equal(c.lower.numpy(), ref.lower.numpy())
+    assert np.abs(ref.coarse.numpy()).max() > 0
+
+
+def test_rebuild_checks_the_new_nodes_data_before_changing_anything():
+    """Bad ``new_sources`` (or velocities) for the nodes a cut added raise SimulationError naming the value,
+    and the simulation is left as it was: the cut can then be applied."""
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (4, 2, 2))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0)
+    r = cut(s, SweepSurface.plane((0.52, 0.25, 0.25), (1.0, 0.1, 0.0), 2.0), collect=False)
+    T, N = sim.tet_count, sim.node_count
+    added = len(s.node_rest) - N
+    assert added > 0
+    ids = np.concatenate([r.removed, r.added])
+    with pytest.raises(wb.SimulationError, match=rf"new_sources must be \({added},\) ints in \[0, {N}\)"):
+        sim.rebuild(ids, new_sources=np.full(added, N + 5))
+    with pytest.raises(wb.SimulationError, match="new_velocities"):
+        sim.rebuild(ids, new_velocities=np.zeros((added + 1, 3)))
+    assert sim.tet_count == T and sim.node_count == N and sim.elements.tet_count == T
+    sim.apply_cut(r)
+    assert sim.tet_count == len(s.cell_nodes) and sim.node_count == len(s.node_rest)

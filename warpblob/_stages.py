@@ -160,9 +160,10 @@ def room(base: wp.array | None, n: int, dtype, device) -> tuple[wp.array, wp.arr
 
     Example:
         >>> base, view = room(None, 10, wp.float32, "cpu")
-        >>> view.shape, room(base, 8, wp.float32, "cpu")[0] is base
-        ((10,), True)
+        >>> view.shape, room(base, 8, wp.float32, "cpu")[0] is base, room(base, 9, float, "cpu")[0] is base
+        ((10,), True, True)
     """
+    dtype = {float: wp.float32, int: wp.int32}.get(dtype, dtype)  # (Python's types as Warp stores them)
     if base is None or base.dtype != dtype or base.device != wp.get_device(device) or base.shape[0] < n:
         base = wp.empty(max(1, n + int(n * ROOM)), dtype=dtype, device=device)
     return base, base[:n]

@@ -59,6 +59,7 @@ def apply_cut(sim, result: CutResult) -> None:
     grow = len(structure.node_rest) - old_n
     v_new = np.zeros((grow, 3))
     fixed_new = np.zeros(grow, dtype=bool)
+    sources = np.full(grow, -1, dtype=np.int64)  # the old node each new one was made from (the coarse space's)
     if new.size:
         v_old = sim.velocities
         fixed_old = np.zeros(old_n, dtype=bool)
@@ -67,8 +68,9 @@ def apply_cut(sim, result: CutResult) -> None:
         w = result.node_weights.astype(np.float64)[:, None]
         v_new[new - old_n] = (1.0 - w) * v_old[a] + w * v_old[b]
         fixed_new[new - old_n] = (a == b) & fixed_old[a]  # a copy of a fixed node stays fixed
+        sources[new - old_n] = np.where(w[:, 0] < 0.5, a, b)  # a split point's nearer end, a copy's node
     sim.rebuild(np.concatenate([result.removed, result.added]).astype(np.int64), new_velocities=v_new,
-                new_fixed=fixed_new)  # fmt: skip
+                new_fixed=fixed_new, new_sources=None if (sources < 0).any() else sources)  # fmt: skip
     sim.stats["components"] = result.components
 
 

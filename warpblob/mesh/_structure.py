@@ -777,13 +777,31 @@ def _group_sorted(keys: wp.array, count: int, device, threads) -> tuple[wp.array
 
 
 def csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, threads) -> tuple[np.ndarray, np.ndarray]:
-    """CSR of ``count`` (row, col) pairs (arrays of 2 ``count``, for the radix sort); lists keep col order.
+    """CSR of ``count`` (row, col) pairs (arrays of 2 ``count``, for the radix sort; ``cols`` None: the pair's
+    index); lists keep col order.
 
-    Sorting replaces the usual count / scan / fill: filling needs an atomic
-    cursor per row, and Warp's CPU atomics are not atomic across the
-    concurrent range-split launches; the stable sort also leaves every list
-    in ascending order, the same on every device.
+    Rows are in ``[0, row_count]``; pairs of row ``row_count`` are left out
+    (a dead entry's row). Sorting replaces the usual count / scan / fill on a
+    GPU: filling needs an atomic cursor per row, and Warp's CPU atomics are
+    not atomic across the concurrent range-split launches; the stable sort
+    also leaves every list in ascending order, the same on every device. On
+    the CPU the count / scan / fill runs on one thread
+    (:func:`counting_sort_kernel`: stable too, so the lists are the same),
+    which takes about a third of the radix sort's time (the element
+    incidence of a 110K-tet mesh: 2.5 against 8 ms).
     """
+    if not wp.get_device(device).is_cuda:
+        if count == 0:
+            return np.zeros(row_count + 1, dtype=np.int32), np.zeros(0, dtype=np.int32)
+        start = wp.zeros(row_count + 2, dtype=wp.int32, device=device)
+        order = wp.empty(count, dtype=wp.int32, device=device)
+        wp.launch(counting_sort_kernel, 1, inputs=[rows[:count], start, order], device=device)
+        off = start.numpy()[: row_count + 1]
+        order = order.numpy()[: off[-1]]
+        return off, order if cols is None else cols.numpy()[:count][order]
+    if cols is None:
+        cols = wp.empty(2 * count, dtype=wp.int32, device=device)
+        wp.copy(cols, wp.array(np.arange(count, dtype=np.int32), dtype=wp.int32, device=device), count=count)
     offsets = wp.empty(row_count + 1, dtype=wp.int32, device=device)
     wp.utils.radix_sort_pairs(rows, cols, count)
     launch(lower_bound_kernel, row_count + 1, [rows, count], [offsets], device, threads)

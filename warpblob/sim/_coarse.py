@@ -47,6 +47,16 @@ contacts landing or lifting); in between, the rotations, the positions of
 the modes, a few contacts' filter and the tools' stiffness move on without
 it. A lagged ``Ac`` is still a fixed SPD preconditioner within each solve,
 so CG converges to the same tolerance; only the iteration count drifts.
+
+A cut does not aggregate anew unless it severs a piece
+(:meth:`CoarseSpace.follow`, which :meth:`warpblob.Simulation.rebuild`
+takes when given the new nodes' sources, as ``apply_cut`` gives them): the
+nodes keep their aggregates, each new node joins its source's, the dead
+tets keep their (zero) slots and the new ones take slots after the last,
+their pair lists merged into the old ones. Any aggregation gives a valid
+preconditioner; this one differs from a fresh lattice only along the cut.
+On the 110K-tet box of ``benchmarks/bench_cut.py``'s scalpel frames the
+set-up went from 12-14 ms to about 2 ms a frame.
 Tool contact (``c_contact K_c``) stays out of ``Ac`` and enters the
 block-Jacobi part, as in the one-level preconditioner.
 
@@ -196,22 +206,38 @@ class CoarseSpace:
         node_mode: (N,) vec3 the offsets ``d_i`` of the last :meth:`refresh`.
         setup_seconds: seconds of the aggregation and slot set-up; ``refresh_seconds`` of the last
             :meth:`refresh`, ``refreshes`` their count.
+        followed: made by :meth:`follow` (the aggregates carried over a cut), not aggregated anew.
     """
 
     def __init__(self, elements, axes: wp.array, threads=None, one_piece: bool = False):
         t0 = time.perf_counter()
-        e, dev = elements, elements.device
-        self.elements, self.axes, self.threads = e, axes, threads
-        N, T = e.node_count, e.tet_count
+        e = elements
         mass = e.mass.numpy()
-        pieces = None if one_piece else node_pieces(e.tets_host[e.alive_host], N)
-        node_aggregate, G, self.cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES,
-                                                 pieces=pieces)  # fmt: skip
+        pieces = None if one_piece else node_pieces(e.tets_host[e.alive_host], e.node_count)
+        node_aggregate, G, cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES,
+                                            pieces=pieces)  # fmt: skip
+        self._layout(e, axes, threads, node_aggregate, G, cell)
+        self.setup_seconds = time.perf_counter() - t0
+
+    @classmethod
+    def laid_out(cls, elements, axes: wp.array, node_aggregate: np.ndarray, aggregate_count: int, cell: float,
+                 threads=None) -> CoarseSpace:  # fmt: skip
+        """A coarse space on given aggregates ((N,) ints, -1: none; ``cell`` the unit of the mode offsets):
+        the layout :meth:`follow` extends, built from scratch (the reference its tests compare with)."""
+        c = cls.__new__(cls)
+        t0 = time.perf_counter()
+        c._layout(elements, axes, threads, np.asarray(node_aggregate, dtype=np.int32), int(aggregate_count),
+                  float(cell))  # fmt: skip
+        c.followed = True
+        c.setup_seconds = time.perf_counter() - t0
+        return c
+
+    def _layout(self, e, axes: wp.array, threads, node_aggregate: np.ndarray, G: int, cell: float) -> None:
+        """The aggregates' node lists, the per-tet slots and their grouping by aggregate pair, and the buffers."""
+        dev = e.device
+        self.elements, self.axes, self.threads, self.cell = e, axes, threads, cell
+        N, T = e.node_count, e.tet_count
         self.aggregate_count, self.size = G, 6 * G
-        order = np.argsort(node_aggregate, kind="stable")
-        order = order[node_aggregate[order] >= 0]
-        offsets = np.zeros(G + 1, dtype=np.int32)
-        offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
         # per tet, one slot per pair of the distinct aggregates of its corners (u of them: u^2 slots, mostly 1),
         # numbered by the aggregates' order of first appearance among the corners; slots grouped by pair
         # (kernels: a tet's groups are its corners' aggregates numbered by first appearance)
@@ -228,26 +254,13 @@ class CoarseSpace:
                [wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
         pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's; codes below G^2: by marks)
-        pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int32)
+        pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int64)
         pair_offsets[1:] = np.cumsum(np.bincount(pair_of_slot, minlength=len(pairs)))
-
-        def array(a, dtype=wp.int32):  # (on the CPU these fresh host arrays are used in place, not copied)
-            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=dev.is_cuda)
-
-        self.node_aggregate = array(node_aggregate)
-        self.aggregate_offsets, self.aggregate_nodes = array(offsets), array(order.astype(np.int32))
-        # a tet's slots are found again from these by the coupling kernel (no (16 T,) table of them)
-        self.slot_start, self.tet_alive = start_wp, alive_wp
-        self.pair_offsets = array(pair_offsets)
         # (a stable sort of narrow keys: numpy's radix sort where they fit 16 bits)
         narrow = pair_of_slot.astype(np.uint16) if len(pairs) <= 1 << 16 else pair_of_slot
-        self.pair_slots = array(np.argsort(narrow, kind="stable").astype(np.int32))
-        self.pair_aggregates = array(np.stack([pairs // G, pairs % G], axis=1).astype(np.int32), wp.vec2i)
-        self.slots = wp.empty(len(slot_code), dtype=wp.spatial_matrix, device=dev)  # (zeroed by each refresh)
-        self.node_mode = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.reference = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._aggregated = len(order)
+        pair_slots = np.argsort(narrow, kind="stable").astype(np.int32)
+        self._set_slots(e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots)
+        self.pair_aggregates = self._array(np.stack([pairs // G, pairs % G], axis=1).astype(np.int32), wp.vec2i)
         # (G, G) blocks of 6 x 6: block (g, h) couples the modes of aggregates g and h
         self.coarse = wp.zeros((G, G), dtype=wp.spatial_matrix, device=dev)
         # the envelope of the coarse matrix: aggregates are numbered along the longest axis first, so a row of
@@ -255,14 +268,119 @@ class CoarseSpace:
         first_block = np.full(G, G, dtype=np.int64)
         np.minimum.at(first_block, pairs // G, pairs % G)
         self.first_host = np.repeat(6 * np.minimum(first_block, np.arange(G)), 6).astype(np.int32)
-        self.first = array(self.first_host)
+        self.first = self._array(self.first_host)
         self.lower = wp.zeros((self.size, self.size), dtype=float, device=dev)
         self.scale = wp.zeros(self.size, dtype=float, device=dev)
         self.work = wp.zeros(self.size, dtype=float, device=dev)
         self.rc = wp.zeros(G, dtype=wp.spatial_vector, device=dev)
         self.zc = wp.zeros(G, dtype=wp.spatial_vector, device=dev)
+
+    def _array(self, a: np.ndarray, dtype=wp.int32) -> wp.array:
+        # (on the CPU these fresh host arrays are used in place, not copied)
+        dev = self.elements.device
+        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=dev.is_cuda)
+
+    def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots) -> None:
+        """Store the aggregates, the slot layout and its grouping (kept on the host too, for :meth:`follow`),
+        and make the per-node and per-slot buffers."""
+        dev, N, G = e.device, e.node_count, self.aggregate_count
+        order = np.argsort(node_aggregate, kind="stable")
+        order = order[node_aggregate[order] >= 0]
+        offsets = np.zeros(G + 1, dtype=np.int32)
+        offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
+        self._host = {"aggregate": node_aggregate, "start": start, "pairs": pairs, "pair_offsets": pair_offsets,
+                      "pair_slots": pair_slots}  # fmt: skip
+        self.node_aggregate = self._array(node_aggregate)
+        self.aggregate_offsets, self.aggregate_nodes = self._array(offsets), self._array(order.astype(np.int32))
+        # a tet's slots are found again from these by the coupling kernel (no (16 T,) table of them)
+        self.slot_start, self.tet_alive = start_wp, alive_wp
+        self.pair_offsets, self.pair_slots = self._array(pair_offsets.astype(np.int32)), self._array(pair_slots)
+        self.slots = wp.empty(int(start[-1]), dtype=wp.spatial_matrix, device=dev)  # (zeroed by each refresh)
+        self.node_mode = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self.reference = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
+        self._aggregated = len(order)
         self.refreshes, self.refresh_seconds = 0, 0.0
-        self.setup_seconds = time.perf_counter() - t0
+        self.followed = False
+
+    def follow(self, elements, axes: wp.array, sources: np.ndarray) -> CoarseSpace | None:
+        """This coarse space carried over a cut: the same aggregates, with every added node in its source's.
+
+        For an edit that only killed tets and appended tets and nodes (a cut
+        or a drill's, :meth:`warpblob.Simulation.rebuild`): nodes keep their
+        aggregates (a node left in no live tet leaves its own), each added node
+        joins the aggregate of ``sources[i]``, the old node it was made from
+        (a split point: the nearer end of its edge; a copy: its node); the
+        dead tets keep their slots, which stay zero, and the added ones take
+        slots after the last. A new tet's corners then lie in aggregates of its
+        parent's corners, so no new aggregate pair appears and the coarse
+        matrix keeps its size and envelope; its pair lists are merged, not
+        sorted again. The coarse matrix is the one :meth:`laid_out` gives on
+        the same aggregates, bit for bit (its sums meet the dead tets' slots
+        as zeros). The aggregates are not split again by piece: call this only
+        when the edit severed no piece (a piece cut off is worth a new
+        aggregation, see the module docstring).
+
+        Args:
+            elements: the rebuilt :class:`~warpblob.sim._elements.Elements` (the same object, edited).
+            axes: (N,) vec3 the new solver's free axes.
+            sources: (K,) int, per node added since (in order), an old node.
+
+        Returns:
+            The new :class:`CoarseSpace`, or None where the edit is not of that kind (fewer tets or nodes than
+            before, a source out of range, an aggregate pair that did not exist): build one from scratch then.
+        """
+        t0 = time.perf_counter()
+        e, dev, host, G = elements, elements.device, self._host, self.aggregate_count
+        old_n, old_t = len(host["aggregate"]), len(host["start"]) - 1
+        N, T = e.node_count, e.tet_count
+        sources = np.asarray(sources, dtype=np.int64).ravel()
+        if N < old_n or T < old_t or len(sources) != N - old_n or (sources.size and (sources.min() < 0
+                                                                                   or sources.max() >= old_n)):
+            return None
+        node_aggregate = np.concatenate([host["aggregate"], host["aggregate"][sources]])
+        node_aggregate[e.mass.numpy() <= 0] = -1
+        alive_wp = wp.array(e.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
+        aggregate_wp = wp.array(node_aggregate, dtype=wp.int32, device=dev)
+        added = T - old_t
+        start = np.empty(T + 1, dtype=np.int64)
+        start[: old_t + 1] = host["start"]
+        pairs, pair_offsets, pair_slots = host["pairs"], host["pair_offsets"], host["pair_slots"]
+        if added:
+            # the added tets' slots (one launch each over them alone: a cut adds a few thousand)
+            squares = wp.empty(T, dtype=wp.int32, device=dev)
+            wp.launch(k.tet_aggregate_counts_kernel, added, inputs=[e.tets, alive_wp, aggregate_wp, old_t, squares],
+                      device=dev)  # fmt: skip
+            np.cumsum(squares.numpy()[old_t:], out=start[old_t + 1 :])
+            start[old_t + 1 :] += start[old_t]
+        start_wp = wp.array(start, dtype=wp.int64, device=dev)
+        first_new, total = int(start[old_t]), int(start[-1])
+        if total > first_new:
+            codes = wp.empty(total, dtype=wp.int64, device=dev)
+            wp.launch(k.tet_pair_slots_kernel, added, inputs=[e.tets, alive_wp, aggregate_wp, start_wp, int(G), old_t,
+                                                              codes], device=dev)  # fmt: skip
+            code = codes.numpy()[first_new:]
+            pair = np.searchsorted(pairs, code)
+            if pair.max() >= len(pairs) or (pairs[pair] != code).any():
+                return None  # a pair of aggregates the coarse matrix has no block for
+            # merged grouping: each pair's old slots, then its new ones in slot order
+            order = np.argsort(pair, kind="stable")
+            added_per_pair = np.bincount(pair, minlength=len(pairs))
+            before = np.zeros(len(pairs) + 1, dtype=np.int64)
+            np.cumsum(added_per_pair, out=before[1:])
+            # (np.insert places equal positions in the order given)
+            merged = np.insert(pair_slots, pair_offsets[1:][pair[order]], (first_new + order).astype(np.int32))
+            pair_offsets, pair_slots = pair_offsets + before, merged
+        c = CoarseSpace.__new__(CoarseSpace)
+        c.elements, c.axes, c.threads, c.cell = e, axes, self.threads, self.cell
+        c.aggregate_count, c.size = G, self.size
+        c._set_slots(e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots)
+        # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
+        for name in ("pair_aggregates", "coarse", "first_host", "first", "lower", "scale", "work", "rc", "zc"):
+            setattr(c, name, getattr(self, name))
+        c.followed = True
+        c.setup_seconds = time.perf_counter() - t0
+        return c
 
     def drifted(self) -> bool:
         """Whether more than :data:`FILTER_CHANGES` of the aggregated nodes changed their free axes since the

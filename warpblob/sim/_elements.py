@@ -6,8 +6,11 @@ CSR node -> corner incidence (corner ``4 t + a`` is local node ``a`` of tet
 ``t``) through which every per-node kernel gathers per-corner results in a
 fixed order. The host copies of topology and materials are the source of
 truth; :meth:`Elements.rebuild` is the call a topology change makes (cutting
-splits, adds and kills tets): it recomputes the geometry of the given tets
-with a kernel, then the masses and the incidence of all nodes.
+splits, adds and kills tets): it recomputes the geometry and the Lamé
+parameters of the given tets with a kernel, the incidence of all nodes (a
+stable counting sort on one CPU thread, a radix sort on a GPU) and the
+masses of the nodes the changed tets touch (the others' stay in place, in
+buffers kept with room to grow).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import warp as wp
 
 from .._errors import SimulationError
 from .._parallel import launch
+from .._stages import room
 from ..mesh._structure import csr
 from . import _kernels as k
 
@@ -154,6 +158,9 @@ class Elements:
     the tets of rigid materials (:meth:`set_rigid`): their ``mu`` and ``lam``
     are zero on the device, so they add mass but no elastic force or
     stiffness (their nodes move as rigid bodies, :mod:`warpblob.sim._rigid`).
+    ``touched_nodes``: (K,) int32 the nodes whose incidence the last
+    :meth:`rebuild` changed (the changed tets' corners before and after it,
+    and every new node), or None after a rebuild of every tet.
     """
 
     def __init__(self, rest, tets, alive, young, poisson, density, *, device, threads=None):
@@ -167,6 +174,7 @@ class Elements:
         self.density_host = np.asarray(density, dtype=np.float64)
         self.dm_inv = wp.zeros(0, dtype=wp.mat33, device=device)
         self.volume = wp.zeros(0, dtype=float, device=device)
+        self._bases: dict = {}  # the buffers under dm_inv and volume (:func:`~warpblob._stages.room`)
         self.rigid_host = np.zeros(self.tet_count, dtype=bool)
         ids = np.arange(self.tet_count, dtype=np.int32)
         check_tets(self.rest_host, self.tets_host, self.alive_host, ids, threads)
@@ -189,8 +197,9 @@ class Elements:
         their new node indices, live flags and materials; ids at or past
         :attr:`tet_count` (consecutive from it) append tets, and a longer
         ``rest`` appends nodes. ``Dm^-1`` and volumes of ``tet_ids`` are
-        recomputed by a kernel, the masses and the incidence of every node by
-        a sort and a gather (both cheap next to a step).
+        recomputed by a kernel, the incidence of every node by a sort, the
+        masses of the nodes those tets touch by a gather (all cheap next to a
+        step).
 
         Args:
             tet_ids: (K,) tet slots to rebuild, or None for all.
@@ -265,10 +274,14 @@ class Elements:
             mats[name] = h
         rest_h = self.rest_host if rest is None else np.ascontiguousarray(rest, dtype=np.float32)
         check_tets(rest_h, tets_h, alive_h, ids, self.threads)
+        touched = None
+        if tet_ids is not None:  # the nodes whose incidence changed: the changed tets' corners, old and new
+            touched = np.unique(np.concatenate([self.tets_host[ids[ids < T]].ravel(), tets_h[ids].ravel(),
+                                                np.arange(self.node_count, len(rest_h))]))  # fmt: skip
         self.rest_host, self.tets_host, self.alive_host = rest_h, tets_h, alive_h
         self.young_host, self.poisson_host, self.density_host = mats["young"], mats["poisson"], mats["density"]
         self.rigid_host = grow(self.rigid_host, False)
-        self._rebuild(ids.astype(np.int32))
+        self._rebuild(ids.astype(np.int32), touched)
 
     def set_rigid(self, mask) -> None:
         """Mark the (T,) bool ``mask`` of tets as rigid: zero Lamé parameters on the device (mass unchanged)."""
@@ -278,51 +291,75 @@ class Elements:
         self.rigid_host = mask.copy()
         self._lame()
 
-    def _lame(self) -> None:
-        mu, lam = lame(self.young_host, self.poisson_host)
-        mu[self.rigid_host] = 0.0
-        lam[self.rigid_host] = 0.0
-        if getattr(self, "mu", None) is not None and self.mu.shape[0] == self.tet_count:
-            # in place: the solver's recorded launches hold these arrays
-            self.mu.assign(mu.astype(np.float32))
-            self.lam.assign(lam.astype(np.float32))
+    def _lame(self, ids: np.ndarray | None = None) -> None:
+        """Lamé parameters on the device (zero for rigid tets): of every tet, or of tets ``ids`` only (the
+        others as before, new slots past the old count)."""
+        T, old = self.tet_count, getattr(self, "_lame_host", None)
+        if ids is None or old is None or len(old[0]) > T:
+            mu, lam = (a.astype(np.float32) for a in lame(self.young_host, self.poisson_host))
+            mu[self.rigid_host] = 0.0
+            lam[self.rigid_host] = 0.0
         else:
-            self.mu = wp.array(mu.astype(np.float32), dtype=float, device=self.device)
-            self.lam = wp.array(lam.astype(np.float32), dtype=float, device=self.device)
+            mu, lam = (np.concatenate([a, np.zeros(T - len(a), dtype=np.float32)]) for a in old)
+            ids = np.asarray(ids, dtype=np.int64)
+            rigid = self.rigid_host[ids]
+            m, l = lame(self.young_host[ids], self.poisson_host[ids])  # noqa: E741
+            mu[ids] = np.where(rigid, 0.0, m)
+            lam[ids] = np.where(rigid, 0.0, l)
+        self._lame_host = (mu, lam)
+        if getattr(self, "mu", None) is not None and self.mu.shape[0] == T:
+            # in place: the solver's recorded launches hold these arrays
+            self.mu.assign(mu)
+            self.lam.assign(lam)
+        else:
+            self.mu = wp.array(mu, dtype=float, device=self.device)
+            self.lam = wp.array(lam, dtype=float, device=self.device)
 
-    def _rebuild(self, ids: np.ndarray) -> None:
+    def _rebuild(self, ids: np.ndarray, touched: np.ndarray | None = None) -> None:
+        """Element data of tets ``ids``, the incidence, and the masses of the ``touched`` nodes (None: all;
+        the others' stay in place)."""
         dev, T, N = self.device, self.tet_count, self.node_count
+        old_n = self.mass.shape[0] if getattr(self, "mass", None) is not None else 0
         self.rest = wp.array(self.rest_host, dtype=wp.vec3, device=dev)
         self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev)
         alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
-        self._lame()
+        self._lame(ids)
         self.density = wp.array(self.density_host.astype(np.float32), dtype=float, device=dev)
-        dm_inv = wp.zeros(T, dtype=wp.mat33, device=dev)
-        volume = wp.zeros(T, dtype=float, device=dev)
+        # kept buffers (room to grow): the tets not in ids keep their values in place, the new ones are in ids
         keep = min(T, self.dm_inv.shape[0])
-        if keep:
-            wp.copy(dm_inv, self.dm_inv, count=keep)
-            wp.copy(volume, self.volume, count=keep)
-        self.dm_inv, self.volume = dm_inv, volume
+        for name, dtype in (("dm_inv", wp.mat33), ("volume", float)):
+            base = self._bases.get(name)
+            self._bases[name], view = room(base, T, dtype, dev)
+            if self._bases[name] is not base and keep:
+                wp.copy(view, getattr(self, name), count=keep)
+            setattr(self, name, view)
         if ids.size:
             ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
                    [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
-        # corners of dead tets sort past the last node, out of every row; the second halves are the radix
-        # sort's scratch (not initialized); on the CPU the host arrays are used in place
+        # corners of dead tets sort past the last node, out of every row; the second half is the radix
+        # sort's scratch (not initialized); on the CPU the host array is used in place; the columns are
+        # the corners' indices
         count = 4 * T
         rows = np.empty(2 * count, dtype=np.int32)
         corner_nodes = rows[:count].reshape(T, 4)
         corner_nodes[:] = self.tets_host
         corner_nodes[~self.alive_host] = N
-        cols = np.empty(2 * count, dtype=np.int32)
-        cols[:count] = np.arange(count, dtype=np.int32)
-        copy = wp.get_device(dev).is_cuda
-        rows_wp = wp.array(rows, dtype=wp.int32, device=dev, copy=copy)
-        cols_wp = wp.array(cols, dtype=wp.int32, device=dev, copy=copy)
-        offsets, corners = csr(rows_wp, cols_wp, count, N, dev, self.threads)
+        rows_wp = wp.array(rows, dtype=wp.int32, device=dev, copy=wp.get_device(dev).is_cuda)
+        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads)
         self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
         self.node_corners = wp.array(corners, dtype=wp.int32, device=dev)
-        self.mass = wp.zeros(N, dtype=float, device=dev)
-        launch(k.gather_masses_kernel, N, [self.node_offsets, self.node_corners, self.volume, self.density],
-               [self.mass], dev, self.threads)  # fmt: skip
+        mass, base = self.mass if old_n else None, self._bases.get("mass")
+        self._bases["mass"], self.mass = room(base, N, float, dev)
+        gather = [self.node_offsets, self.node_corners, self.volume, self.density]
+        self.touched_nodes = None if touched is None or not old_n else touched.astype(np.int32)
+        if self.touched_nodes is None:
+            # (a light kernel: pieces of 2^15 nodes, not the launcher's default, whose many small pieces cost
+            # more in launches than the gather)
+            launch(k.gather_masses_kernel, N, gather, [self.mass], dev, self.threads, min_chunk=1 << 15)
+            return
+        if self._bases["mass"] is not base:
+            wp.copy(self.mass, mass, count=min(old_n, N))
+        nodes = wp.array(self.touched_nodes, dtype=wp.int32, device=dev)
+        launch(k.gather_masses_at_kernel, len(self.touched_nodes), [nodes, *gather], [self.mass], dev, self.threads,
+               min_chunk=1 << 14)  # fmt: skip

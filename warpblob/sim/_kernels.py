@@ -220,18 +220,11 @@ def rotate_elements_kernel(
     corner_block[4 * t] = wp.vec4(q0[0], q0[1], q0[2], V * m * wp.dot(g0, g0))
 
 
-@wp.kernel(enable_backward=False)
-def gather_elements_kernel(
-    node_offsets: wp.array(dtype=wp.int32),
-    node_corners: wp.array(dtype=wp.int32),
-    corner_force: wp.array(dtype=wp.vec3),
-    corner_block: wp.array(dtype=wp.vec4),
-    offset: int,
-    node_force: wp.array(dtype=wp.vec3),
-    node_block: wp.array(dtype=wp.mat33),
-):
-    """Per node, in incidence order: the elastic force and the diagonal block of ``K'``."""
-    i = wp.tid() + offset
+@wp.func
+def _gather_node(i: int, node_offsets: wp.array(dtype=wp.int32), node_corners: wp.array(dtype=wp.int32),
+                 corner_force: wp.array(dtype=wp.vec3), corner_block: wp.array(dtype=wp.vec4),
+                 node_force: wp.array(dtype=wp.vec3), node_block: wp.array(dtype=wp.mat33)):  # fmt: skip
+    """Node ``i``'s elastic force and diagonal block of ``K'``, summed over its corners in incidence order."""
     f = wp.vec3()
     D = wp.mat33()
     for k in range(node_offsets[i], node_offsets[i + 1]):
@@ -245,6 +238,47 @@ def gather_elements_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def gather_elements_kernel(
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_force: wp.array(dtype=wp.vec3),
+    corner_block: wp.array(dtype=wp.vec4),
+    offset: int,
+    node_force: wp.array(dtype=wp.vec3),
+    node_block: wp.array(dtype=wp.mat33),
+):
+    """Per node, in incidence order: the elastic force and the diagonal block of ``K'``."""
+    _gather_node(wp.tid() + offset, node_offsets, node_corners, corner_force, corner_block, node_force, node_block)
+
+
+@wp.kernel(enable_backward=False)
+def gather_elements_at_kernel(
+    nodes: wp.array(dtype=wp.int32),
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    corner_force: wp.array(dtype=wp.vec3),
+    corner_block: wp.array(dtype=wp.vec4),
+    offset: int,
+    node_force: wp.array(dtype=wp.vec3),
+    node_block: wp.array(dtype=wp.mat33),
+):
+    """:func:`gather_elements_kernel` at the listed nodes only (a topology change's: the others keep theirs)."""
+    _gather_node(nodes[wp.tid() + offset], node_offsets, node_corners, corner_force, corner_block, node_force,
+                 node_block)  # fmt: skip
+
+
+@wp.func
+def _gather_mass(i: int, node_offsets: wp.array(dtype=wp.int32), node_corners: wp.array(dtype=wp.int32),
+                 volume: wp.array(dtype=float), density: wp.array(dtype=float), mass: wp.array(dtype=float)):  # fmt: skip
+    """Node ``i``'s lumped mass: a quarter of each incident tet's ``density * volume``, in incidence order."""
+    m = float(0.0)
+    for k in range(node_offsets[i], node_offsets[i + 1]):
+        t = node_corners[k] // 4
+        m += 0.25 * density[t] * volume[t]
+    mass[i] = m
+
+
+@wp.kernel(enable_backward=False)
 def gather_masses_kernel(
     node_offsets: wp.array(dtype=wp.int32),
     node_corners: wp.array(dtype=wp.int32),
@@ -254,12 +288,21 @@ def gather_masses_kernel(
     mass: wp.array(dtype=float),
 ):
     """Lumped mass: a quarter of each incident tet's ``density * volume``, in incidence order."""
-    i = wp.tid() + offset
-    m = float(0.0)
-    for k in range(node_offsets[i], node_offsets[i + 1]):
-        t = node_corners[k] // 4
-        m += 0.25 * density[t] * volume[t]
-    mass[i] = m
+    _gather_mass(wp.tid() + offset, node_offsets, node_corners, volume, density, mass)
+
+
+@wp.kernel(enable_backward=False)
+def gather_masses_at_kernel(
+    nodes: wp.array(dtype=wp.int32),
+    node_offsets: wp.array(dtype=wp.int32),
+    node_corners: wp.array(dtype=wp.int32),
+    volume: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+    offset: int,
+    mass: wp.array(dtype=float),
+):
+    """:func:`gather_masses_kernel` at the listed nodes only."""
+    _gather_mass(nodes[wp.tid() + offset], node_offsets, node_corners, volume, density, mass)
 
 
 @wp.kernel(enable_backward=False)

@@ -326,9 +326,14 @@ class Simulation:
         self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
         # a structure whose cells are known to form one piece (through faces, so through nodes too) spares the
         # coarse space its count of the pieces
-        one_piece = self._structure is not None and self._structure._known_pieces() == 1
+        known = None if self._structure is None else self._structure._known_pieces()
+        # a cut's rebuild may carry the coarse space over (rebuild sets _follow where the edit allows it)
+        sources, self._follow = getattr(self, "_follow", None), None
         self._solver = ImplicitSolver(e, self._flags, self._states, self.threads, self.linear_solver,
-                                      self.preconditioner, one_piece)  # fmt: skip
+                                      self.preconditioner, known == 1, getattr(self, "_solver", None),
+                                      sources)  # fmt: skip
+        if self._solver.coarse is not None and not self._solver.coarse.followed:
+            self._coarse_pieces = known  # the pieces its aggregates were split by (None: not known)
         blocks = block_count(N, dev)
         self._check_bad = wp.zeros(blocks, dtype=wp.int32, device=dev)
         self._check_sums = wp.zeros((len(k.CHECK_ROWS), blocks), dtype=wp.float64, device=dev)
@@ -939,7 +944,7 @@ class Simulation:
 
     # -- topology changes ------------------------------------------------------
 
-    def rebuild(self, tet_ids=None, *, new_velocities=None, new_fixed=None, **changes) -> None:
+    def rebuild(self, tet_ids=None, *, new_velocities=None, new_fixed=None, new_sources=None, **changes) -> None:
         """Rebuild element data after a topology change: the call the cutting code makes after each edit.
 
         ``tet_ids`` and ``changes`` (``tets``, ``alive``, ``rest``, ``young``,
@@ -954,7 +959,14 @@ class Simulation:
         ``new_fixed`` ((K,) bool) says (default free); positions,
         velocities and fixed flags of the others stay. The solver is rebuilt
         with the element data, the two-level preconditioner's aggregates and
-        coarse matrix included (their set-up is in :attr:`stats`).
+        coarse matrix included (their set-up is in :attr:`stats`), except
+        after a cut's kind of edit: given ``new_sources`` ((K,) ints, the old
+        node each added node was made from, as :meth:`apply_cut` gives), on a
+        TetStructure, where the changed old tets are all dead and the
+        structure's piece count is the one the aggregates were split by, the
+        aggregates are kept and the added nodes join their sources'
+        (:meth:`~warpblob.sim._coarse.CoarseSpace.follow`: no new lattice, no
+        count of the pieces, the slot layout extended rather than rebuilt).
 
         Material ids: on a TetStructure they are re-read (a cut's new tets keep
         their parent's); on a TetMesh give ``material=`` ((K,) ints for the
@@ -987,6 +999,18 @@ class Simulation:
             changes = {**read, **changes}
             tet_ids = ids
         old_n = e.node_count
+        # the added nodes' data, checked before anything changes
+        grow = max(0, len(changes["rest"]) - old_n) if changes.get("rest") is not None else 0
+        vnew = np.zeros((grow, 3)) if new_velocities is None else np.asarray(new_velocities, np.float64)
+        fnew = np.zeros(grow, dtype=bool) if new_fixed is None else np.asarray(new_fixed, dtype=bool)
+        if vnew.shape != (grow, 3) or fnew.shape != (grow,):
+            raise SimulationError(f"rebuild: {grow} nodes were added; new_velocities must be ({grow}, 3) and "
+                                  f"new_fixed ({grow},), got {vnew.shape} and {fnew.shape}")  # fmt: skip
+        src = None if new_sources is None else np.asarray(new_sources)
+        if src is not None and (src.shape != (grow,) or (src.size and (not np.issubdtype(src.dtype, np.integer)
+                                                                       or src.min() < 0 or src.max() >= old_n))):
+            raise SimulationError(f"rebuild: {grow} nodes were added; new_sources must be ({grow},) ints in "
+                                  f"[0, {old_n}), got {new_sources!r}")  # fmt: skip
         x, v = self.positions, self.velocities
         target, external, mask = self._target.numpy(), self._external.numpy(), self._fixed_mask
         if material_new is not None:
@@ -1009,12 +1033,15 @@ class Simulation:
             added = np.asarray(self._structure.node_position, dtype=np.float32)[old_n : e.node_count]
         pad = lambda a, fill: np.concatenate([a, fill])  # noqa: E731
         # the element pass of the tets not rebuilt carries over (same positions, same element data)
-        carry = None if tet_ids is None else (self._state, old_t, np.asarray(tet_ids, dtype=np.int64))
-        vnew = np.zeros((grow, 3)) if new_velocities is None else np.asarray(new_velocities, np.float64)
-        fnew = np.zeros(grow, dtype=bool) if new_fixed is None else np.asarray(new_fixed, dtype=bool)
-        if vnew.shape != (grow, 3) or fnew.shape != (grow,):
-            raise SimulationError(f"rebuild: {grow} nodes were added; new_velocities must be ({grow}, 3) and "
-                                  f"new_fixed ({grow},), got {vnew.shape} and {fnew.shape}")  # fmt: skip
+        carry = None if tet_ids is None else (self._state, old_t, np.asarray(tet_ids, dtype=np.int64),
+                                              e.touched_nodes)  # fmt: skip
+        self._follow = None
+        old_ids = np.asarray(tet_ids, dtype=np.int64).ravel() if tet_ids is not None else None
+        if (src is not None and self._solver.coarse is not None and old_ids is not None
+                and self._structure is not None and self._structure._known_pieces() is not None
+                and self._structure._known_pieces() == getattr(self, "_coarse_pieces", None)
+                and not e.alive_host[old_ids[old_ids < old_t]].any()):  # fmt: skip
+            self._follow = src.astype(np.int64)  # (the new solver carries its predecessor's coarse space)
         self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64))
         self._carry = carry
         self._target.assign(pad(target, added))

@@ -178,10 +178,12 @@ class ElementState:
     def compute(self, elements, x: wp.array, threads=None, *, carry=None) -> None:
         """Rotations, energies, volumes and node forces of ``elements`` at positions ``x``.
 
-        ``carry``: ``(state, count, ids)``, an earlier state at the same positions of the first ``count``
-        tets, of which only ``ids`` (int, any order) have changed since: the others' values are copied from
-        it (the same values: the pass is per tet) and only ``ids`` and the tets past ``count`` recomputed
-        (a topology change's rebuild, O(changed) instead of O(T)); the node forces are gathered anew.
+        ``carry``: ``(state, count, ids)`` or ``(state, count, ids, nodes)``, an earlier state at the same
+        positions of the first ``count`` tets, of which only ``ids`` (int, any order) have changed since:
+        the others' values are copied from it (the same values: the pass is per tet) and only ``ids`` and
+        the tets past ``count`` recomputed (a topology change's rebuild, O(changed) instead of O(T)); the
+        node forces are gathered anew at ``nodes`` (int, the nodes whose incidence changed, every new node
+        among them: :attr:`Elements.touched_nodes`), the others' copied, or at every node without them.
         """
         e, dev = elements, elements.device
         out = [self.rotated, self.corner_force, self.corner_block, self.energy, self.volume]
@@ -189,7 +191,7 @@ class ElementState:
         if carry is None:
             split_launch(k.rotate_elements_kernel, e.tet_count, [self._every, *inputs], out, dev, threads, TET_GRAIN)
         else:
-            old, count, ids = carry
+            old, count, ids, *nodes = carry
             count = min(int(count), e.tet_count)
             for a, b, per in zip(out, (old.rotated, old.corner_force, old.corner_block, old.energy, old.volume),
                                  (1, 4, 4, 1, 1)):  # fmt: skip
@@ -200,9 +202,20 @@ class ElementState:
             if ids.size:
                 split_launch(k.rotate_elements_kernel, len(ids), [wp.array(ids, dtype=wp.int32, device=dev),
                              *inputs], out, dev, threads, TET_GRAIN)  # fmt: skip
-        split_launch(k.gather_elements_kernel, e.node_count,
-                     [e.node_offsets, e.node_corners, self.corner_force, self.corner_block],
-                     [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
+        gather = [e.node_offsets, e.node_corners, self.corner_force, self.corner_block]
+        nodes = nodes[0] if carry is not None and nodes and nodes[0] is not None else None
+        if nodes is None:
+            split_launch(k.gather_elements_kernel, e.node_count, gather, [self.node_force, self.node_block], dev,
+                         threads, NODE_GRAIN)  # fmt: skip
+            return
+        kept = min(old.node_force.shape[0], e.node_count)
+        for a, b in ((self.node_force, old.node_force), (self.node_block, old.node_block)):
+            if a.ptr != b.ptr:
+                wp.copy(a, b, count=kept)
+        nodes = np.asarray(nodes, dtype=np.int32)
+        if nodes.size:
+            split_launch(k.gather_elements_at_kernel, len(nodes), [wp.array(nodes, dtype=wp.int32, device=dev),
+                         *gather], [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
 
 
 #: the linear solvers of ``Simulation(linear_solver=...)`` and the preconditioners of ``preconditioner=``
@@ -222,6 +235,11 @@ class ImplicitSolver:
         preconditioner: ``"two_level"`` (block-Jacobi plus the coarse correction of
             :mod:`warpblob.sim._coarse`) or ``"block_jacobi"``; both linear solvers use it.
         one_piece: the live tets are known to form one piece (the coarse space need not count them).
+        previous: the solver this one replaces after a topology change (None: the first): its per-corner
+            buffer is kept where it has room.
+        sources: with ``previous``, carry its coarse space over an edit that only killed and appended tets
+            and appended nodes made from the old nodes ``sources`` ((K,) ints; :meth:`CoarseSpace.follow`)
+            instead of building a new one (which it falls back to where the edit is not of that kind).
 
     Attributes (Warp arrays the contact pass writes, zero without contact):
         ``contact_force`` (N,) vec3 node forces, ``contact_weight`` (N,) the
@@ -231,7 +249,8 @@ class ImplicitSolver:
     """
 
     def __init__(self, elements, flags: wp.array, states, threads=None, linear_solver: str = "pcg",
-                 preconditioner: str = "two_level", one_piece: bool = False):  # fmt: skip
+                 preconditioner: str = "two_level", one_piece: bool = False, previous=None,
+                 sources: np.ndarray | None = None):  # fmt: skip
         self.elements = elements
         self.flags = flags
         self.threads = threads
@@ -249,7 +268,8 @@ class ImplicitSolver:
         self.coarse_axes = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.ones = wp.full(N, wp.vec3(1.0, 1.0, 1.0), dtype=wp.vec3, device=dev)
         self.inverse_block = wp.zeros(N, dtype=wp.mat33, device=dev)
-        self.corner_out = wp.zeros(4 * T, dtype=wp.vec3, device=dev)
+        # (not zeroed: every product writes all of it before a node's row reads its live corners)
+        self._corner_base, self.corner_out = room(getattr(previous, "_corner_base", None), 4 * T, wp.vec3, dev)
         self.r = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.z = wp.zeros(N, dtype=wp.vec3, device=dev)
         self.p = wp.zeros(N, dtype=wp.vec3, device=dev)
@@ -282,7 +302,12 @@ class ImplicitSolver:
                            for parity in (0, 1)]  # fmt: skip
         self._coefficients = None
         self._grain = grain
-        self.coarse = CoarseSpace(e, self.coarse_axes, th, one_piece) if preconditioner == "two_level" else None
+        self.coarse = None
+        if preconditioner == "two_level":
+            if sources is not None and getattr(previous, "coarse", None) is not None:
+                self.coarse = previous.coarse.follow(e, self.coarse_axes, sources)
+            if self.coarse is None:
+                self.coarse = CoarseSpace(e, self.coarse_axes, th, one_piece)
         self.rigid = None
         self._coarse_key, self._coarse_age = None, 0
         if self.coarse is not None:
