@@ -236,7 +236,7 @@ class CoarseSpace:
         """The aggregates' node lists, the per-tet slots and their grouping by aggregate pair, and the buffers."""
         dev = e.device
         self.elements, self.axes, self.threads, self.cell = e, axes, threads, cell
-        N, T = e.node_count, e.tet_count
+        T = e.tet_count
         self.aggregate_count, self.size = G, 6 * G
         # per tet, one slot per pair of the distinct aggregates of its corners (u of them: u^2 slots, mostly 1),
         # numbered by the aggregates' order of first appearance among the corners; slots grouped by pair

@@ -303,7 +303,7 @@ class Elements:
             mu, lam = (np.concatenate([a, np.zeros(T - len(a), dtype=np.float32)]) for a in old)
             ids = np.asarray(ids, dtype=np.int64)
             rigid = self.rigid_host[ids]
-            m, l = lame(self.young_host[ids], self.poisson_host[ids])  # noqa: E741
+            m, l = lame(self.young_host[ids], self.poisson_host[ids])
             mu[ids] = np.where(rigid, 0.0, m)
             lam[ids] = np.where(rigid, 0.0, l)
         self._lame_host = (mu, lam)
