@@ -208,13 +208,15 @@ def test_coarse_slots_are_the_reference_layout():
     assert (~live).sum() > 0 and (u > 1).sum() > 0 and G > 1
 
 
-def test_a_cut_carries_the_coarse_space_over():
+def test_a_cut_carries_the_coarse_space_over(monkeypatch):
     """A cut that severs nothing keeps the coarse space's aggregates (CoarseSpace.follow): old nodes keep
     theirs, each new node takes its source's (a split point: the nearer end of its edge); the live tets' slots
     do not overlap and are grouped by their pairs; the coarse matrix and its factor equal, bit for bit, those
     of a coarse space laid out from scratch on the same aggregates; the next step converges."""
+    from warpblob.sim import _coarse
     from warpblob.sim._coarse import CoarseSpace
 
+    monkeypatch.setattr(_coarse, "FOLLOW_GROWTH", 1.0)  # (this small box grows by more than the default share)
     box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
     s = TetStructure.from_tetmesh(box)
     sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 0] == 0.0)
@@ -251,6 +253,23 @@ def test_a_cut_carries_the_coarse_space_over():
     np.testing.assert_array_equal(c.coarse.numpy(), ref.coarse.numpy())
     np.testing.assert_array_equal(c.lower.numpy(), ref.lower.numpy())
     assert np.abs(ref.coarse.numpy()).max() > 0
+
+
+@pytest.mark.parametrize("growth", [0.0, 1.0])
+def test_the_coarse_space_is_made_anew_once_the_nodes_grew(growth, monkeypatch):
+    """The aggregates are carried over cuts only while the nodes have grown by at most FOLLOW_GROWTH since
+    they were made (then aggregated anew, on a lattice fitted to the nodes there are)."""
+    from warpblob.sim import _coarse
+
+    monkeypatch.setattr(_coarse, "FOLLOW_GROWTH", growth)
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 0] == 0.0)
+    a = np.array([[0.1, 0.23, 0.7], [0.8, 0.26, 0.7]])
+    r = cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.45)), collect=False)
+    assert r.components == 1 and len(r.new_nodes) > 0
+    sim.apply_cut(r)
+    assert sim._solver.coarse.followed == (growth > 0)
 
 
 def test_rebuild_checks_the_new_nodes_data_before_changing_anything():

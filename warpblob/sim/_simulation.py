@@ -48,6 +48,7 @@ from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
+from . import _coarse
 from ._coarse import node_pieces
 from ._contact import Contact, ToolContact
 from ._elements import Elements, material_values
@@ -334,6 +335,7 @@ class Simulation:
                                       sources)  # fmt: skip
         if self._solver.coarse is not None and not self._solver.coarse.followed:
             self._coarse_pieces = known  # the pieces its aggregates were split by (None: not known)
+            self._coarse_nodes = N
         blocks = block_count(N, dev)
         self._check_bad = wp.zeros(blocks, dtype=wp.int32, device=dev)
         self._check_sums = wp.zeros((len(k.CHECK_ROWS), blocks), dtype=wp.float64, device=dev)
@@ -963,7 +965,9 @@ class Simulation:
         after a cut's kind of edit: given ``new_sources`` ((K,) ints, the old
         node each added node was made from, as :meth:`apply_cut` gives), on a
         TetStructure, where the changed old tets are all dead and the
-        structure's piece count is the one the aggregates were split by, the
+        structure's piece count is the one the aggregates were split by and
+        the nodes have grown by at most
+        :data:`~warpblob.sim._coarse.FOLLOW_GROWTH` since they were made, the
         aggregates are kept and the added nodes join their sources'
         (:meth:`~warpblob.sim._coarse.CoarseSpace.follow`: no new lattice, no
         count of the pieces, the slot layout extended rather than rebuilt).
@@ -1040,6 +1044,7 @@ class Simulation:
         if (src is not None and self._solver.coarse is not None and old_ids is not None
                 and self._structure is not None and self._structure._known_pieces() is not None
                 and self._structure._known_pieces() == getattr(self, "_coarse_pieces", None)
+                and e.node_count <= (1.0 + _coarse.FOLLOW_GROWTH) * getattr(self, "_coarse_nodes", 0)
                 and not e.alive_host[old_ids[old_ids < old_t]].any()):  # fmt: skip
             self._follow = src.astype(np.int64)  # (the new solver carries its predecessor's coarse space)
         self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64))
