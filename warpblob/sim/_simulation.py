@@ -47,8 +47,8 @@ from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
 from ..mesh import TetMesh, TetStructure
-from . import _kernels as k
 from . import _coarse
+from . import _kernels as k
 from ._coarse import node_pieces
 from ._contact import Contact, ToolContact
 from ._elements import Elements, material_values
