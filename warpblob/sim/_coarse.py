@@ -237,7 +237,6 @@ class CoarseSpace:
         t0 = time.perf_counter()
         c._layout(elements, axes, threads, np.asarray(node_aggregate, dtype=np.int32), int(aggregate_count),
                   float(cell))  # fmt: skip
-        c.followed = True
         c.setup_seconds = time.perf_counter() - t0
         return c
 
