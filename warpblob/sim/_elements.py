@@ -356,10 +356,11 @@ class Elements:
         if self.touched_nodes is None:
             # (a light kernel: pieces of 2^15 nodes, not the launcher's default, whose many small pieces cost
             # more in launches than the gather)
-            launch(k.gather_masses_kernel, N, gather, [self.mass], dev, self.threads, min_chunk=1 << 15)
+            every = wp.zeros(0, dtype=wp.int32, device=dev)
+            launch(k.gather_masses_kernel, N, [every, *gather], [self.mass], dev, self.threads, min_chunk=1 << 15)
             return
         if self._bases["mass"] is not base:
             wp.copy(self.mass, mass, count=min(old_n, N))
         nodes = wp.array(self.touched_nodes, dtype=wp.int32, device=dev)
-        launch(k.gather_masses_at_kernel, len(self.touched_nodes), [nodes, *gather], [self.mass], dev, self.threads,
+        launch(k.gather_masses_kernel, len(self.touched_nodes), [nodes, *gather], [self.mass], dev, self.threads,
                min_chunk=1 << 14)  # fmt: skip

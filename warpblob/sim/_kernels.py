@@ -239,20 +239,6 @@ def _gather_node(i: int, node_offsets: wp.array(dtype=wp.int32), node_corners: w
 
 @wp.kernel(enable_backward=False)
 def gather_elements_kernel(
-    node_offsets: wp.array(dtype=wp.int32),
-    node_corners: wp.array(dtype=wp.int32),
-    corner_force: wp.array(dtype=wp.vec3),
-    corner_block: wp.array(dtype=wp.vec4),
-    offset: int,
-    node_force: wp.array(dtype=wp.vec3),
-    node_block: wp.array(dtype=wp.mat33),
-):
-    """Per node, in incidence order: the elastic force and the diagonal block of ``K'``."""
-    _gather_node(wp.tid() + offset, node_offsets, node_corners, corner_force, corner_block, node_force, node_block)
-
-
-@wp.kernel(enable_backward=False)
-def gather_elements_at_kernel(
     nodes: wp.array(dtype=wp.int32),
     node_offsets: wp.array(dtype=wp.int32),
     node_corners: wp.array(dtype=wp.int32),
@@ -262,9 +248,12 @@ def gather_elements_at_kernel(
     node_force: wp.array(dtype=wp.vec3),
     node_block: wp.array(dtype=wp.mat33),
 ):
-    """:func:`gather_elements_kernel` at the listed nodes only (a topology change's: the others keep theirs)."""
-    _gather_node(nodes[wp.tid() + offset], node_offsets, node_corners, corner_force, corner_block, node_force,
-                 node_block)  # fmt: skip
+    """Per node, in incidence order: the elastic force and the diagonal block of ``K'``; of the listed
+    ``nodes`` (a topology change's: the others keep theirs), or of every node where the list is empty."""
+    i = wp.tid() + offset
+    if nodes.shape[0] > 0:
+        i = nodes[i]
+    _gather_node(i, node_offsets, node_corners, corner_force, corner_block, node_force, node_block)
 
 
 @wp.func
@@ -280,19 +269,6 @@ def _gather_mass(i: int, node_offsets: wp.array(dtype=wp.int32), node_corners: w
 
 @wp.kernel(enable_backward=False)
 def gather_masses_kernel(
-    node_offsets: wp.array(dtype=wp.int32),
-    node_corners: wp.array(dtype=wp.int32),
-    volume: wp.array(dtype=float),
-    density: wp.array(dtype=float),
-    offset: int,
-    mass: wp.array(dtype=float),
-):
-    """Lumped mass: a quarter of each incident tet's ``density * volume``, in incidence order."""
-    _gather_mass(wp.tid() + offset, node_offsets, node_corners, volume, density, mass)
-
-
-@wp.kernel(enable_backward=False)
-def gather_masses_at_kernel(
     nodes: wp.array(dtype=wp.int32),
     node_offsets: wp.array(dtype=wp.int32),
     node_corners: wp.array(dtype=wp.int32),
@@ -301,8 +277,12 @@ def gather_masses_at_kernel(
     offset: int,
     mass: wp.array(dtype=float),
 ):
-    """:func:`gather_masses_kernel` at the listed nodes only."""
-    _gather_mass(nodes[wp.tid() + offset], node_offsets, node_corners, volume, density, mass)
+    """Lumped mass: a quarter of each incident tet's ``density * volume``, in incidence order; of the listed
+    ``nodes``, or of every node where the list is empty."""
+    i = wp.tid() + offset
+    if nodes.shape[0] > 0:
+        i = nodes[i]
+    _gather_mass(i, node_offsets, node_corners, volume, density, mass)
 
 
 @wp.kernel(enable_backward=False)

@@ -205,8 +205,8 @@ class ElementState:
         gather = [e.node_offsets, e.node_corners, self.corner_force, self.corner_block]
         nodes = nodes[0] if carry is not None and nodes and nodes[0] is not None else None
         if nodes is None:
-            split_launch(k.gather_elements_kernel, e.node_count, gather, [self.node_force, self.node_block], dev,
-                         threads, NODE_GRAIN)  # fmt: skip
+            split_launch(k.gather_elements_kernel, e.node_count, [self._every, *gather],
+                         [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
             return
         kept = min(old.node_force.shape[0], e.node_count)
         for a, b in ((self.node_force, old.node_force), (self.node_block, old.node_block)):
@@ -214,7 +214,7 @@ class ElementState:
                 wp.copy(a, b, count=kept)
         nodes = np.asarray(nodes, dtype=np.int32)
         if nodes.size:
-            split_launch(k.gather_elements_at_kernel, len(nodes), [wp.array(nodes, dtype=wp.int32, device=dev),
+            split_launch(k.gather_elements_kernel, len(nodes), [wp.array(nodes, dtype=wp.int32, device=dev),
                          *gather], [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
 
 
