@@ -776,9 +776,11 @@ def _group_sorted(keys: wp.array, count: int, device, threads) -> tuple[wp.array
     return groups, int(groups[count - 1 : count].numpy()[0])
 
 
-def csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, threads) -> tuple[np.ndarray, np.ndarray]:
+def csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, threads,
+        order: wp.array | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """CSR of ``count`` (row, col) pairs (arrays of 2 ``count``, for the radix sort; ``cols`` None: the pair's
-    index); lists keep col order.
+    index); lists keep col order. ``order``: on the CPU, an int32 array of ``count`` or more to write the
+    sorted lists into (the returned lists are then a view of it; default: a new one).
 
     Rows are in ``[0, row_count]``; pairs of row ``row_count`` are left out
     (a dead entry's row). Sorting replaces the usual count / scan / fill on a
@@ -794,7 +796,7 @@ def csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, thre
         if count == 0:
             return np.zeros(row_count + 1, dtype=np.int32), np.zeros(0, dtype=np.int32)
         start = wp.zeros(row_count + 2, dtype=wp.int32, device=device)
-        order = wp.empty(count, dtype=wp.int32, device=device)
+        order = wp.empty(count, dtype=wp.int32, device=device) if order is None else order[:count]
         wp.launch(counting_sort_kernel, 1, inputs=[rows[:count], start, order], device=device)
         off = start.numpy()[: row_count + 1]
         order = order.numpy()[: off[-1]]

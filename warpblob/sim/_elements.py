@@ -338,17 +338,28 @@ class Elements:
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
                    [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
         # corners of dead tets sort past the last node, out of every row; the second half is the radix
-        # sort's scratch (not initialized); on the CPU the host array is used in place; the columns are
-        # the corners' indices
+        # sort's scratch (not initialized); the columns are the corners' indices. On the CPU the keys are
+        # written in a kept buffer (scratch), and the lists into the one of two kept buffers the current
+        # lists are not in (fresh pages of a 16 MB array at 1M tets cost more than the sort's writes)
         count = 4 * T
-        rows = np.empty(2 * count, dtype=np.int32)
+        cpu = not wp.get_device(dev).is_cuda
+        if cpu:
+            self._bases["rows"], rows_wp = room(self._bases.get("rows"), count, wp.int32, dev)
+            rows = rows_wp.numpy()
+            spare = "corners_b" if self._bases.get("corners_a") is getattr(self, "_corner_base", None) else "corners_a"
+            self._bases[spare], order = room(self._bases.get(spare), count, wp.int32, dev)
+            self._corner_base = self._bases[spare]
+        else:
+            rows = np.empty(2 * count, dtype=np.int32)
+            order = None
         corner_nodes = rows[:count].reshape(T, 4)
         corner_nodes[:] = self.tets_host
         corner_nodes[~self.alive_host] = N
-        rows_wp = wp.array(rows, dtype=wp.int32, device=dev, copy=wp.get_device(dev).is_cuda)
-        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads)
+        if not cpu:
+            rows_wp = wp.array(rows, dtype=wp.int32, device=dev)
+        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads, order)
         self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
-        self.node_corners = wp.array(corners, dtype=wp.int32, device=dev)
+        self.node_corners = wp.array(corners, dtype=wp.int32, device=dev, copy=not cpu)
         mass, base = self.mass if old_n else None, self._bases.get("mass")
         self._bases["mass"], self.mass = room(base, N, float, dev)
         gather = [self.node_offsets, self.node_corners, self.volume, self.density]
