@@ -186,7 +186,7 @@ def test_aggregates_hold_one_piece_each_after_a_cut(monkeypatch):
 
 def test_a_cut_that_severs_nothing_keeps_the_aggregates(monkeypatch):
     """A cut that leaves one piece: the structure knows its count of one piece, and a coarse space told so
-    (one_piece, which skips counting the nodes' pieces) aggregates as one that counts them."""
+    (pieces=1, which skips counting the nodes' pieces) aggregates as one that counts them."""
     monkeypatch.setattr(_coarse, "AGGREGATE_NODES", 12)
     mesh = box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (8, 2, 2))
     s = wb.TetStructure.from_tetmesh(mesh)
@@ -195,7 +195,7 @@ def test_a_cut_that_severs_nothing_keeps_the_aggregates(monkeypatch):
     result = wb.cut.cut(s, wb.cut.SweepSurface.plane((0.53, 0.1, 0.2), (1.0, 0.0, 0.0), 0.16), collect=False)
     sim.apply_cut(result)
     assert result.tets_added > 0 and result.components == 1 and s._known_pieces() == 1
-    hinted = _coarse.CoarseSpace(sim.elements, sim._solver.coarse_axes, one_piece=True)
+    hinted = _coarse.CoarseSpace(sim.elements, sim._solver.coarse_axes, pieces=1)
     counted = _coarse.CoarseSpace(sim.elements, sim._solver.coarse_axes)
     np.testing.assert_array_equal(hinted.node_aggregate.numpy(), counted.node_aggregate.numpy())
 

@@ -205,8 +205,9 @@ class CoarseSpace:
         elements: the :class:`~warpblob.sim._elements.Elements`.
         axes: (N,) vec3 the free axes of the step's filter (``S``), written by the assembly.
         threads: CPU threads (None: the default).
-        one_piece: the live tets are known to form one piece (the caller counted them): the aggregates
-            are then not split by piece, and the pieces are not counted (:func:`node_pieces`).
+        pieces: the number of connected pieces the live tets are known to form (the structure counted
+            them), or None: at 1 the aggregates are not split by piece and the pieces are not counted
+            (:func:`node_pieces`); :meth:`follow` compares it with the count after a cut.
 
     Attributes:
         aggregate_count: G; ``size`` = 6 G coarse unknowns; ``cell``: the lattice's cell size (the mode
@@ -215,17 +216,19 @@ class CoarseSpace:
         node_mode: (N,) vec3 the offsets ``d_i`` of the last :meth:`refresh`.
         setup_seconds: seconds of the aggregation and slot set-up; ``refresh_seconds`` of the last
             :meth:`refresh`, ``refreshes`` their count.
-        followed: made by :meth:`follow` (the aggregates carried over a cut), not aggregated anew.
+        followed: made by :meth:`follow` (the aggregates carried over a cut), not aggregated anew;
+            ``pieces`` and ``made_nodes``: the piece count and the node count when they were made.
     """
 
-    def __init__(self, elements, axes: wp.array, threads=None, one_piece: bool = False):
+    def __init__(self, elements, axes: wp.array, threads=None, pieces: int | None = None):
         t0 = time.perf_counter()
         e = elements
         mass = e.mass.numpy()
-        pieces = None if one_piece else node_pieces(e.tets_host[e.alive_host], e.node_count)
+        labels = None if pieces == 1 else node_pieces(e.tets_host[e.alive_host], e.node_count)
         node_aggregate, G, cell = aggregate(e.rest_host, mass > 0, nodes=AGGREGATE_NODES, limit=MAX_AGGREGATES,
-                                            pieces=pieces)  # fmt: skip
+                                            pieces=labels)  # fmt: skip
         self._layout(e, axes, threads, node_aggregate, G, cell)
+        self.pieces, self.made_nodes = pieces, e.node_count
         self.setup_seconds = time.perf_counter() - t0
 
     @classmethod
@@ -237,6 +240,7 @@ class CoarseSpace:
         t0 = time.perf_counter()
         c._layout(elements, axes, threads, np.asarray(node_aggregate, dtype=np.int32), int(aggregate_count),
                   float(cell))  # fmt: skip
+        c.pieces, c.made_nodes = None, elements.node_count
         c.setup_seconds = time.perf_counter() - t0
         return c
 
@@ -311,7 +315,7 @@ class CoarseSpace:
         self.refreshes, self.refresh_seconds = 0, 0.0
         self.followed = False
 
-    def follow(self, elements, axes: wp.array, sources: np.ndarray) -> CoarseSpace | None:
+    def follow(self, elements, axes: wp.array, sources: np.ndarray, pieces: int | None) -> CoarseSpace | None:
         """This coarse space carried over a cut: the same aggregates, with every added node in its source's.
 
         For an edit that only killed tets and appended tets and nodes (a cut
@@ -325,24 +329,29 @@ class CoarseSpace:
         matrix keeps its size and envelope; its pair lists are merged, not
         sorted again. The coarse matrix is the one :meth:`laid_out` gives on
         the same aggregates, bit for bit (its sums meet the dead tets' slots
-        as zeros). The aggregates are not split again by piece: call this only
-        when the edit severed no piece (a piece cut off is worth a new
-        aggregation, see the module docstring).
+        as zeros). The aggregates are not split again by piece, so a cut that
+        severed a piece (``pieces`` differs from the count they were made
+        with, or either is unknown) is worth a new aggregation (see the module
+        docstring), and so are nodes grown by more than :data:`FOLLOW_GROWTH`.
 
         Args:
             elements: the rebuilt :class:`~warpblob.sim._elements.Elements` (the same object, edited).
             axes: (N,) vec3 the new solver's free axes.
             sources: (K,) int, per node added since (in order), an old node.
+            pieces: the structure's piece count after the edit (None: not known).
 
         Returns:
-            The new :class:`CoarseSpace`, or None where the edit is not of that kind (fewer tets or nodes than
-            before, a source out of range, an aggregate pair that did not exist): build one from scratch then.
+            The new :class:`CoarseSpace`, or None where it should be made anew (a piece severed, the nodes
+            grown too much) or the edit is not of that kind (fewer tets or nodes than before, a source out
+            of range, an aggregate pair that did not exist): build one from scratch then.
         """
         t0 = time.perf_counter()
         e, dev, host, G = elements, elements.device, self._host, self.aggregate_count
         old_n, old_t = len(host["aggregate"]), len(host["start"]) - 1
         N, T = e.node_count, e.tet_count
         sources = np.asarray(sources, dtype=np.int64).ravel()
+        if pieces is None or pieces != self.pieces or N > (1.0 + FOLLOW_GROWTH) * self.made_nodes:
+            return None
         if N < old_n or T < old_t or len(sources) != N - old_n or (sources.size and (sources.min() < 0
                                                                                    or sources.max() >= old_n)):
             return None
@@ -386,7 +395,7 @@ class CoarseSpace:
         # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
         for name in ("pair_aggregates", "coarse", "first_host", "first", "lower", "scale", "work", "rc", "zc"):
             setattr(c, name, getattr(self, name))
-        c.followed = True
+        c.followed, c.pieces, c.made_nodes = True, self.pieces, self.made_nodes
         c.setup_seconds = time.perf_counter() - t0
         return c
 

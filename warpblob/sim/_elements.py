@@ -174,7 +174,10 @@ class Elements:
         self.density_host = np.asarray(density, dtype=np.float64)
         self.dm_inv = wp.zeros(0, dtype=wp.mat33, device=device)
         self.volume = wp.zeros(0, dtype=float, device=device)
-        self._bases: dict = {}  # the buffers under dm_inv and volume (:func:`~warpblob._stages.room`)
+        # the kept buffers (:func:`~warpblob._stages.room`) under dm_inv, volume, mass, the incidence sort's
+        # keys and, alternating, its lists (_spare: the one the next rebuild writes)
+        self._bases: dict = {}
+        self._spare = 1
         self.rigid_host = np.zeros(self.tet_count, dtype=bool)
         ids = np.arange(self.tet_count, dtype=np.int32)
         check_tets(self.rest_host, self.tets_host, self.alive_host, ids, threads)
@@ -346,9 +349,8 @@ class Elements:
         if cpu:
             self._bases["rows"], rows_wp = room(self._bases.get("rows"), count, wp.int32, dev)
             rows = rows_wp.numpy()
-            spare = "corners_b" if self._bases.get("corners_a") is getattr(self, "_corner_base", None) else "corners_a"
-            self._bases[spare], order = room(self._bases.get(spare), count, wp.int32, dev)
-            self._corner_base = self._bases[spare]
+            self._spare = spare = 1 - self._spare  # (0, 1, 0, ...: never the buffer of the lists in use)
+            self._bases[("corners", spare)], order = room(self._bases.get(("corners", spare)), count, wp.int32, dev)
         else:
             rows = np.empty(2 * count, dtype=np.int32)
             order = None

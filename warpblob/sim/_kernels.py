@@ -220,23 +220,6 @@ def rotate_elements_kernel(
     corner_block[4 * t] = wp.vec4(q0[0], q0[1], q0[2], V * m * wp.dot(g0, g0))
 
 
-@wp.func
-def _gather_node(i: int, node_offsets: wp.array(dtype=wp.int32), node_corners: wp.array(dtype=wp.int32),
-                 corner_force: wp.array(dtype=wp.vec3), corner_block: wp.array(dtype=wp.vec4),
-                 node_force: wp.array(dtype=wp.vec3), node_block: wp.array(dtype=wp.mat33)):  # fmt: skip
-    """Node ``i``'s elastic force and diagonal block of ``K'``, summed over its corners in incidence order."""
-    f = wp.vec3()
-    D = wp.mat33()
-    for k in range(node_offsets[i], node_offsets[i + 1]):
-        c = node_corners[k]
-        f += corner_force[c]
-        b = corner_block[c]
-        q = wp.vec3(b[0], b[1], b[2])
-        D += wp.outer(q, q) + b[3] * wp.identity(n=3, dtype=float)
-    node_force[i] = f
-    node_block[i] = D
-
-
 @wp.kernel(enable_backward=False)
 def gather_elements_kernel(
     nodes: wp.array(dtype=wp.int32),
@@ -253,18 +236,16 @@ def gather_elements_kernel(
     i = wp.tid() + offset
     if nodes.shape[0] > 0:
         i = nodes[i]
-    _gather_node(i, node_offsets, node_corners, corner_force, corner_block, node_force, node_block)
-
-
-@wp.func
-def _gather_mass(i: int, node_offsets: wp.array(dtype=wp.int32), node_corners: wp.array(dtype=wp.int32),
-                 volume: wp.array(dtype=float), density: wp.array(dtype=float), mass: wp.array(dtype=float)):  # fmt: skip
-    """Node ``i``'s lumped mass: a quarter of each incident tet's ``density * volume``, in incidence order."""
-    m = float(0.0)
+    f = wp.vec3()
+    D = wp.mat33()
     for k in range(node_offsets[i], node_offsets[i + 1]):
-        t = node_corners[k] // 4
-        m += 0.25 * density[t] * volume[t]
-    mass[i] = m
+        c = node_corners[k]
+        f += corner_force[c]
+        b = corner_block[c]
+        q = wp.vec3(b[0], b[1], b[2])
+        D += wp.outer(q, q) + b[3] * wp.identity(n=3, dtype=float)
+    node_force[i] = f
+    node_block[i] = D
 
 
 @wp.kernel(enable_backward=False)
@@ -282,7 +263,11 @@ def gather_masses_kernel(
     i = wp.tid() + offset
     if nodes.shape[0] > 0:
         i = nodes[i]
-    _gather_mass(i, node_offsets, node_corners, volume, density, mass)
+    m = float(0.0)
+    for k in range(node_offsets[i], node_offsets[i + 1]):
+        t = node_corners[k] // 4
+        m += 0.25 * density[t] * volume[t]
+    mass[i] = m
 
 
 @wp.kernel(enable_backward=False)

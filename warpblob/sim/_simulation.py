@@ -47,7 +47,6 @@ from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
 from ..mesh import TetMesh, TetStructure
-from . import _coarse
 from . import _kernels as k
 from ._coarse import node_pieces
 from ._contact import Contact, ToolContact
@@ -306,7 +305,9 @@ class Simulation:
             height, friction = ground, 0.5
         return _number("ground height", height), _number("ground friction", friction, low=0.0, strict=False)
 
-    def _allocate(self, positions: np.ndarray, velocities: np.ndarray) -> None:
+    def _allocate(self, positions: np.ndarray, velocities: np.ndarray, sources: np.ndarray | None = None) -> None:
+        """Buffers, element states and the solver for the current elements (``sources``: the new nodes'
+        sources after a cut's edit, for the coarse space to be carried over, :meth:`rebuild`)."""
         dev, e = self.device, self.elements
         self._carry = None  # (state, tets, changed tets): what the next _refresh may carry over (rebuild)
         N, T = e.node_count, e.tet_count
@@ -325,17 +326,12 @@ class Simulation:
         self._moved = wp.zeros(N, dtype=wp.vec3, device=dev)
         self._flags = wp.zeros(N, dtype=wp.uint8, device=dev)
         self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
-        # a structure whose cells are known to form one piece (through faces, so through nodes too) spares the
-        # coarse space its count of the pieces
+        # the structure's piece count (through faces, so through nodes too), where it knows it: one piece
+        # spares the coarse space its count of the pieces, and a cut that leaves the count lets it carry over
         known = None if self._structure is None else self._structure._known_pieces()
-        # a cut's rebuild may carry the coarse space over (rebuild sets _follow where the edit allows it)
-        sources, self._follow = getattr(self, "_follow", None), None
         self._solver = ImplicitSolver(e, self._flags, self._states, self.threads, self.linear_solver,
-                                      self.preconditioner, known == 1, getattr(self, "_solver", None),
+                                      self.preconditioner, known, getattr(self, "_solver", None),
                                       sources)  # fmt: skip
-        if self._solver.coarse is not None and not self._solver.coarse.followed:
-            self._coarse_pieces = known  # the pieces its aggregates were split by (None: not known)
-            self._coarse_nodes = N
         blocks = block_count(N, dev)
         self._check_bad = wp.zeros(blocks, dtype=wp.int32, device=dev)
         self._check_sums = wp.zeros((len(k.CHECK_ROWS), blocks), dtype=wp.float64, device=dev)
@@ -1039,15 +1035,11 @@ class Simulation:
         # the element pass of the tets not rebuilt carries over (same positions, same element data)
         carry = None if tet_ids is None else (self._state, old_t, np.asarray(tet_ids, dtype=np.int64),
                                               e.touched_nodes)  # fmt: skip
-        self._follow = None
-        old_ids = np.asarray(tet_ids, dtype=np.int64).ravel() if tet_ids is not None else None
-        if (src is not None and self._solver.coarse is not None and old_ids is not None
-                and self._structure is not None and self._structure._known_pieces() is not None
-                and self._structure._known_pieces() == getattr(self, "_coarse_pieces", None)
-                and e.node_count <= (1.0 + _coarse.FOLLOW_GROWTH) * getattr(self, "_coarse_nodes", 0)
-                and not e.alive_host[old_ids[old_ids < old_t]].any()):  # fmt: skip
-            self._follow = src.astype(np.int64)  # (the new solver carries its predecessor's coarse space)
-        self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64))
+        # a cut's kind of edit (the changed old tets all dead now) lets the coarse space be carried over
+        old_ids = None if tet_ids is None else np.asarray(tet_ids, dtype=np.int64).ravel()
+        follow = src is not None and old_ids is not None and not e.alive_host[old_ids[old_ids < old_t]].any()
+        self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64),
+                       src.astype(np.int64) if follow else None)  # fmt: skip
         self._carry = carry
         self._target.assign(pad(target, added))
         self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))

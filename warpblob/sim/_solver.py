@@ -234,12 +234,12 @@ class ImplicitSolver:
         linear_solver: ``"pcg"`` (the fused kernels here) or ``"warp"`` (``warp.optim.linear.cg``).
         preconditioner: ``"two_level"`` (block-Jacobi plus the coarse correction of
             :mod:`warpblob.sim._coarse`) or ``"block_jacobi"``; both linear solvers use it.
-        one_piece: the live tets are known to form one piece (the coarse space need not count them).
+        pieces: the number of pieces the live tets are known to form, or None (:class:`CoarseSpace`).
         previous: the solver this one replaces after a topology change (None: the first): its per-corner
             buffer is kept where it has room.
         sources: with ``previous``, carry its coarse space over an edit that only killed and appended tets
             and appended nodes made from the old nodes ``sources`` ((K,) ints; :meth:`CoarseSpace.follow`)
-            instead of building a new one (which it falls back to where the edit is not of that kind).
+            instead of building a new one (which it falls back to where follow declines).
 
     Attributes (Warp arrays the contact pass writes, zero without contact):
         ``contact_force`` (N,) vec3 node forces, ``contact_weight`` (N,) the
@@ -249,7 +249,7 @@ class ImplicitSolver:
     """
 
     def __init__(self, elements, flags: wp.array, states, threads=None, linear_solver: str = "pcg",
-                 preconditioner: str = "two_level", one_piece: bool = False, previous=None,
+                 preconditioner: str = "two_level", pieces: int | None = None, previous=None,
                  sources: np.ndarray | None = None):  # fmt: skip
         self.elements = elements
         self.flags = flags
@@ -305,9 +305,9 @@ class ImplicitSolver:
         self.coarse = None
         if preconditioner == "two_level":
             if sources is not None and getattr(previous, "coarse", None) is not None:
-                self.coarse = previous.coarse.follow(e, self.coarse_axes, sources)
+                self.coarse = previous.coarse.follow(e, self.coarse_axes, sources, pieces)
             if self.coarse is None:
-                self.coarse = CoarseSpace(e, self.coarse_axes, th, one_piece)
+                self.coarse = CoarseSpace(e, self.coarse_axes, th, pieces)
         self.rigid = None
         self._coarse_key, self._coarse_age = None, 0
         if self.coarse is not None:
