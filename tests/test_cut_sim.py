@@ -160,6 +160,40 @@ def test_element_pass_after_a_cut_is_the_full_pass():
         np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(), err_msg=name)
 
 
+def test_incidence_kept_over_rebuilds_is_the_sorted_one(device):
+    """Rebuilds that kill tets, revive dead ones, append tets and nodes, one after another, each merging the
+    touched nodes' lists into those in use: the incidence and the masses equal those of elements built from
+    scratch, bit for bit, after every rebuild (and a rebuild of all tets sorts afresh to the same)."""
+    from warpblob.sim._elements import Elements
+
+    m = box_tetmesh((0, 0, 0), (1, 1, 1), (4, 4, 4))
+    T = len(m.tets)
+    e = Elements(m.nodes, m.tets, np.ones(T, bool), np.full(T, 1e3), np.full(T, 0.3), np.full(T, 1e3), device=device)
+    rng = np.random.default_rng(3)
+    for step in range(4):
+        T, N = e.tet_count, e.node_count
+        live, dead = np.flatnonzero(e.alive_host), np.flatnonzero(~e.alive_host)
+        kill = rng.choice(live, 7, replace=False)
+        revive = dead[: 3]
+        # new tets: copies of killed ones on a new node placed where the old one was
+        copies = e.tets_host[kill[:4]].copy()
+        rest = np.concatenate([e.rest_host, e.rest_host[copies[:, 0]]])
+        copies[:, 0] = N + np.arange(4)
+        ids = np.concatenate([kill, revive, T + np.arange(4)])
+        tets = np.concatenate([e.tets_host[kill], e.tets_host[revive], copies])
+        alive = np.concatenate([np.zeros(7, bool), np.ones(len(revive), bool), np.ones(4, bool)])
+        e.rebuild(ids, tets=tets, alive=alive, rest=rest, young=np.full(len(ids), 1e3),
+                  poisson=np.full(len(ids), 0.3), density=np.full(len(ids), 1e3 + step))  # fmt: skip
+        assert e.touched_nodes is not None
+        fresh = Elements(e.rest_host, e.tets_host, e.alive_host, e.young_host, e.poisson_host, e.density_host,
+                         device=device)  # fmt: skip
+        for name in ("node_offsets", "node_corners", "mass", "volume"):
+            np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(),
+                                          err_msg=f"{name} after rebuild {step}")  # fmt: skip
+    e.rebuild()
+    np.testing.assert_array_equal(e.node_corners.numpy(), fresh.node_corners.numpy())
+
+
 def _reference_layout(c, e) -> tuple:
     """numpy's per-tet slot layout of coarse space ``c`` on elements ``e``: per live tet (every corner in an
     aggregate) u^2 slots for its u distinct corner aggregates in order of first appearance, from its first

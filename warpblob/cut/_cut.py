@@ -369,6 +369,12 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         candidates = _compact(flags_c, dev, threads)
     candidates_wp = _shared(candidates, wp.int32, dev)
     code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
+    # a cell's unit and its table entry depend on its code only (its corners, edges and their split points are
+    # fixed within a cut): a round re-classifies the cells whose code changed, and the progressive parents
+    M = len(candidates)
+    own_c = state.record_of(candidates) < 0 if state.children.size else np.ones(M, dtype=bool)
+    stored_code = np.full(M, -1, dtype=np.int64)
+    stored: dict = {}
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut = np.zeros(E, dtype=np.uint8)
@@ -376,18 +382,25 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         split_t[set_t] = -1.0
         set_t = hits[keep]
         split_t[set_t] = t_hit[keep]
-        launch(k.cell_codes_at_kernel, len(candidates),
+        launch(k.cell_codes_at_kernel, M,
                [candidates_wp, arrays["cell_nodes"], arrays["cell_edges"], _shared(edge_cut, wp.uint8, dev),
                 _shared(node_cut, wp.uint8, dev)], [code_wp], dev, threads, min_chunk=8192)  # fmt: skip
-        codes = code_wp.numpy()
-        changed = np.flatnonzero(codes)
-        cells, codes = candidates[changed], codes[changed]
-        if state.children.size:
-            own = state.cell_parent[cells] < 0  # pieces of a progressive parent are cut through their parent
-            cells, codes = cells[own], codes[own]
-        units = _units(state, cells, codes, cell_nodes_np, cell_edges_np, edge_nodes_np, edge_cut, split_t,
-                       node_cut)  # fmt: skip
-        entry, perm, rv, bad = _classify_units(tables, units, structure.node_rest, dev, threads)
+        codes = code_wp.numpy().astype(np.int64)
+        # pieces of a progressive parent are cut through their parent
+        changed = np.flatnonzero((codes != 0) & own_c)
+        stale = changed[stored_code[changed] != codes[changed]]
+        fresh = _cell_units(candidates[stale], codes[stale], cell_nodes_np, cell_edges_np, edge_nodes_np, split_t)
+        extra = _parent_units(state, edge_nodes_np, edge_cut, split_t, node_cut)
+        rows = fresh if extra is None else {name: np.concatenate([fresh[name], extra[name]]) for name in fresh}
+        rows.update(zip(_CLASSIFIED, _classify_units(tables, rows, structure.node_rest, dev, threads)))
+        if not stored:
+            stored = {name: np.empty((M, *a.shape[1:]), dtype=a.dtype) for name, a in rows.items()}
+        for name, a in rows.items():
+            stored[name][stale] = a[: len(stale)]
+        stored_code[stale] = codes[stale]
+        # the cells' units in candidate order, then the parents'
+        units = {name: np.concatenate([stored[name][changed], a[len(stale) :]]) for name, a in rows.items()}
+        entry, perm, rv, bad = (units.pop(name) for name in _CLASSIFIED)
         if np.any(rv <= 0):
             c0 = int(np.argmax(rv <= 0))
             raise CutError(f"cut: cell {int(units['cell'][c0])} is inverted or flat at rest (volume "
@@ -484,6 +497,10 @@ def _near_cells(structure, lower, upper, cell_alive, reach) -> np.ndarray | None
     return None if near is None else near[cell_alive[near] != 0]
 
 
+#: what :func:`_classify_units` gives per unit, by name
+_CLASSIFIED = ("entry", "perm", "rv", "bad")
+
+
 def _materials(materials) -> np.ndarray | None:
     """The material ids a cut is restricted to, as a sorted int32 array (None: every material)."""
     if materials is None:
@@ -562,16 +579,15 @@ class _ParentState:
         self.is_protected = np.zeros(N, dtype=bool)
         self.protected = np.zeros(0, dtype=np.int64)
         self.edges = np.full((pr.count, 6), -1, dtype=np.int64)
-        self.cell_parent = None  # per cell its live record, -1 none (None: no live record at all)
         self.children = self.active = np.zeros(0, dtype=np.int64)
-        if pr.count and pr["alive"].any():
-            alive = np.asarray(structure.cell_alive)
-            cp = np.asarray(structure.cell_parent).astype(np.int64)
-            live = pr["alive"].copy()
-            # a piece of an ended record is an ordinary cell
-            self.cell_parent = np.where((cp >= 0) & live[np.maximum(cp, 0)], cp, -1)
-            self.children = np.flatnonzero(alive & (self.cell_parent >= 0))
-            self.active = np.unique(self.cell_parent[self.children])
+        self._live = pr["alive"].copy() if pr.count else np.zeros(0, dtype=bool)
+        if self._live.any():
+            # the pieces of live records (a piece of an ended record is an ordinary cell), from the structure's
+            # index of pieces rather than a pass over every cell
+            pieces = structure._cells_with_parent().astype(np.int64)
+            pieces = pieces[np.asarray(structure.cell_alive)[pieces]]
+            self.children = pieces[self._live[np.asarray(structure.cell_parent)[pieces]]]
+            self.active = np.unique(np.asarray(structure.cell_parent)[self.children])
         if self.children.size:
             self.drop[np.asarray(structure.cell_edges)[self.children].ravel()] = True
             corners = pr["corners"][self.active]
@@ -580,17 +596,17 @@ class _ParentState:
             self.drop[ge[ge >= 0]] = False
             self.edges[self.active] = ge
             # their inner nodes (split copies, front points) may not be snapped onto; their other corners
-            # may: the record is then split again with that cut node
-            inner = np.setdiff1d(np.asarray(structure.cell_nodes)[self.children], corners)
-            # a corner on an edge the record has cut may not be snapped onto (that edge would need un-cutting)
+            # may: the record is then split again with that cut node. Nor may a corner on an edge the
+            # record has cut (that edge would need un-cutting)
+            self.is_protected[np.asarray(structure.cell_nodes)[self.children]] = True
             on_cut = np.zeros(corners.shape, dtype=bool)
             old_cut = pr["split"][self.active][:, :, 0] >= 0  # (a, 6)
             for j, (u, v) in enumerate(TET_EDGES):
                 on_cut[:, u] |= old_cut[:, j]
                 on_cut[:, v] |= old_cut[:, j]
-            inner = np.union1d(inner, corners[on_cut])
-            self.protected = inner
-            self.is_protected[inner] = True
+            self.is_protected[corners] = False
+            self.is_protected[corners[on_cut]] = True
+            self.protected = np.flatnonzero(self.is_protected)
 
         # crack-front points on faces, by the face's corner triple: shared with the tet across the face
         live = np.flatnonzero(pr["alive"])
@@ -602,6 +618,11 @@ class _ParentState:
         self.front_ids = fronts[has].astype(np.int64)
         order = np.argsort(self.front_keys)
         self.front_keys, self.front_ids = self.front_keys[order], self.front_ids[order]
+
+    def record_of(self, cells: np.ndarray) -> np.ndarray:
+        """The live record each of ``cells`` is a piece of, -1 none."""
+        cp = np.asarray(self.structure.cell_parent)[cells].astype(np.int64)
+        return np.where((cp >= 0) & self._live[np.maximum(cp, 0)], cp, -1) if len(self._live) else np.full_like(cp, -1)
 
     def front_of(self, keys: np.ndarray) -> np.ndarray:
         """Existing crack-front node of each face key, -1 where none."""
@@ -632,13 +653,8 @@ def _triple_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
     return (t[:, 0] * n + t[:, 1]) * n + t[:, 2]
 
 
-def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, split_t, node_cut) -> dict:
-    """The tets this cut changes: whole cells, and progressive parents whose own edges it cuts.
-
-    Per unit: corners (4 nodes), edge_code, node_code, new_edges (the global edge of each local edge this
-    stroke cuts, -1 else), old_split (split copies of edges cut before, -1 else), t (local split parameters),
-    parent (record id, -1 for a cell), cell (the cell, -1 for a parent).
-    """
+def _cell_units(cells, codes, cell_nodes, cell_edges, edge_nodes, split_t) -> dict:
+    """The cells this cut changes as units (:func:`_parent_units`): their rows, given the cells' codes."""
     n = len(cells)
     cn = cell_nodes[cells].astype(np.int64)
     ce = cell_edges[cells].astype(np.int64)
@@ -648,13 +664,23 @@ def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, sp
     forward = edge_nodes[ce, 0] == cn[:, TET_EDGES[:, 0]]
     st = split_t[ce]
     t = np.where(bits == 1, np.where(forward, st, 1.0 - st), -1.0)
-    units = {
+    return {
         "corners": cn, "edge_code": ecode, "node_code": (codes >> 6).astype(np.int64), "new_edges": new_edges,
         "old_split": np.full((n, 6, 2), -1, dtype=np.int64), "t": t, "parent": np.full(n, -1, dtype=np.int64),
-        "cell": cells.astype(np.int64),
+        "cell": np.asarray(cells, dtype=np.int64),
     }  # fmt: skip
+
+
+def _parent_units(state, edge_nodes, edge_cut, split_t, node_cut) -> dict | None:
+    """The progressive parents whose own edges or corners this cut cuts, as units; None where there are none.
+
+    A unit is a tet the cut changes (a whole cell, :func:`_cell_units`, or a parent). Its rows: corners
+    (4 nodes), edge_code, node_code, new_edges (the global edge of each local edge this stroke cuts, -1
+    else), old_split (split copies of edges cut before, -1 else), t (local split parameters), parent
+    (record id, -1 for a cell), cell (the cell, -1 for a parent).
+    """
     if not state.active.size:
-        return units
+        return None
     pr = state.structure._parents
     act = state.active
     ge = state.edges[act]  # (a, 6)
@@ -662,7 +688,7 @@ def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, sp
     corner_cut = node_cut[pr["corners"][act]] != 0  # (a, 4)
     moved = cut_now.any(axis=1) | corner_cut.any(axis=1)
     if not moved.any():
-        return units
+        return None
     act, ge, cut_now, corner_cut = act[moved], ge[moved], cut_now[moved], corner_cut[moved]
     corners = pr["corners"][act].astype(np.int64)
     old_split = pr["split"][act].astype(np.int64)
@@ -672,12 +698,11 @@ def _units(state, cells, codes, cell_nodes, cell_edges, edge_nodes, edge_cut, sp
     forward = edge_nodes[np.maximum(ge, 0), 0] == corners[:, TET_EDGES[:, 0]]
     st_ = split_t[np.maximum(ge, 0)]
     t_par = np.where(cut_now, np.where(forward, st_, 1.0 - st_), old_t)
-    extra = {
+    return {
         "corners": corners, "edge_code": code, "node_code": (corner_cut * (1 << np.arange(4))).sum(axis=1),
         "new_edges": new_e,
         "old_split": old_split, "t": t_par, "parent": act.astype(np.int64), "cell": np.full(len(act), -1, np.int64),
     }  # fmt: skip
-    return {name: np.concatenate([units[name], extra[name]]) for name in units}
 
 
 class _NewNodes:
@@ -841,11 +866,10 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
     material_of = np.asarray(structure.cell_material)
     unit_material = np.where(is_parent, -1, material_of[np.maximum(units["cell"], 0)])
     if is_parent.any():
-        cp = state.cell_parent
-        children = state.children[np.isin(cp[state.children], parents_split)]
+        children = state.children[np.isin(np.asarray(structure.cell_parent)[state.children], parents_split)]
         # a parent's material is its pieces' (all the same)
         of_record = np.zeros(pr.count, dtype=material_of.dtype)
-        of_record[cp[children]] = material_of[children]
+        of_record[np.asarray(structure.cell_parent)[children]] = material_of[children]
         unit_material[is_parent] = of_record[parents_split]
     remove = np.concatenate([units["cell"][replace & ~is_parent], children]).astype(np.int64)
     counts_r = counts[replace]

@@ -1318,6 +1318,8 @@ class TetStructure:
         # every edge slot is used by a live cell (after a build or a compaction, until an edge is inserted
         # alone or a cell removed or changed): lets a cut skip its pass marking the edges in use
         self._edges_used = False
+        # the cells that are pieces of a progressive-cut record, ascending (None: to be found by a pass)
+        self._parented: np.ndarray | None = np.zeros(0, dtype=np.int32)
         self._clear_links()
 
     def _clear_links(self) -> None:
@@ -2113,6 +2115,8 @@ class TetStructure:
         par = np.full(C, -1, dtype=np.int32) if parent is None else np.broadcast_to(np.asarray(parent, np.int32), (C,))
         cell_ids = cells.extend(C, nodes=new, faces=cell_faces.reshape(C, 4), edges=cell_edges, material=mat,
                                 parent=par)  # fmt: skip
+        if self._parented is not None:
+            self._parented = np.concatenate([self._parented, cell_ids[par >= 0].astype(np.int32)])
         # link: each use takes the next free slot of its face (kept cells first)
         if C:
             face_cells = faces.arrays["cells"]  # the extend above may have grown it
@@ -2128,6 +2132,14 @@ class TetStructure:
         self._links_stale = True
         self._edges_used = edges_used
         return cell_ids
+
+    def _cells_with_parent(self) -> np.ndarray:
+        """The cells (live or not) that are pieces of a progressive-cut record, ascending int32: kept by the
+        edits that make them (a cut's :meth:`replace_cells`), found by one pass over the cells after a
+        compaction renumbered them."""
+        if self._parented is None:
+            self._parented = np.flatnonzero(self._stores["cell"]["parent"] >= 0).astype(np.int32)
+        return self._parented
 
     def _mark_origin(self, ids, origin: int) -> None:
         """Record how nodes were made (:data:`NODE_ORIGINS`), e.g. model nodes a cut snapped onto."""
@@ -2490,6 +2502,7 @@ class TetStructure:
             parent=_remap(pmap, child_parent),
             alive=np.ones(c.sum(), dtype=bool),
         )
+        self._parented = None
         self._pending = {k: [] for k in KINDS}
         # the lookup table now; the CSR lists when a query first needs them
         self._clear_links()

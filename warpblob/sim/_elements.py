@@ -19,8 +19,8 @@ import numpy as np
 import warp as wp
 
 from .._errors import SimulationError
-from .._parallel import launch
-from .._stages import room
+from .._parallel import launch, thread_count
+from .._stages import ROOM, room
 from ..mesh._structure import csr
 from . import _kernels as k
 
@@ -96,8 +96,12 @@ def lame(young: np.ndarray, poisson: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return mu, lam
 
 
-def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.ndarray, threads=None) -> None:
+def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.ndarray, threads=None,
+               names: np.ndarray | None = None) -> None:  # fmt: skip
     """SimulationError for a live tet among ``ids`` that names a bad node or is inverted or flat at rest.
+
+    ``names``: the tet ids the errors name, per entry of ``ids`` (default: ``ids``; the rows of a rebuild's
+    listed slots are checked before they are written).
 
     One kernel thread per tet (:func:`~warpblob.sim._kernels.check_tets_kernel`, float64); the error names
     the first tet of the first kind found, in this order: a node outside ``[0, N)``, a repeated node, an
@@ -108,35 +112,48 @@ def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.nd
     if not ids.size:
         return
     cpu = wp.get_device("cpu")
-    tets = np.ascontiguousarray(tets, dtype=np.int32).reshape(-1, 4)
+    tets = np.asarray(tets).reshape(-1, 4)
+    rows, live = tets[ids].astype(np.int64), np.asarray(alive, dtype=bool)[ids]
+    outside = live & ((rows < 0) | (rows >= N)).any(axis=1)
+    names = ids if names is None else np.asarray(names).ravel()
+    if outside.any():
+        j = int(np.argmax(outside))
+        raise SimulationError(f"tet {int(names[j])} = {tets[ids[j]].tolist()} names a node outside [0, {N})")
+    # a few tets (a cut's): their nodes' rest positions only, in float64
+    if 16 * len(ids) < N:
+        nodes, local = np.unique(np.where(live[:, None], rows, 0), return_inverse=True)
+        rest, rows = np.asarray(rest)[nodes], local.reshape(-1, 4)
     code = np.empty(len(ids), dtype=np.int32)
     volume = np.empty(len(ids), dtype=np.float64)
     longest = np.empty(len(ids), dtype=np.float64)
     launch(k.check_tets_kernel, len(ids),
-           [wp.array(np.asarray(rest, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=cpu),
-            wp.array(tets, dtype=wp.vec4i, device=cpu, copy=False),
-            wp.array(np.ascontiguousarray(alive, dtype=bool).view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
-            wp.array(ids, dtype=wp.int32, device=cpu, copy=False), wp.float64(DEGENERATE_VOLUME)],
+           [wp.array(np.asarray(rest, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=cpu, copy=False),
+            wp.array(rows.astype(np.int32), dtype=wp.vec4i, device=cpu, copy=False),
+            wp.array(live.view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+            wp.array(np.arange(len(ids), dtype=np.int32), dtype=wp.int32, device=cpu, copy=False),
+            wp.float64(DEGENERATE_VOLUME)],
            [wp.array(a, dtype=d, device=cpu, copy=False) for a, d in
             ((code, wp.int32), (volume, wp.float64), (longest, wp.float64))], cpu, threads,
            min_chunk=8192)  # fmt: skip
     if not code.any():
         return
-    for kind in (1, 2, 3):
+    for kind in (2, 3):
         where = np.flatnonzero(code == kind)
         if not where.size:
             continue
         j = int(where[0])
-        t = int(ids[j])
-        if kind == 1:
-            raise SimulationError(f"tet {t} = {tets[t].tolist()} names a node outside [0, {N})")
+        t, row = int(names[j]), tets[ids[j]].tolist()
         if kind == 2:
-            raise SimulationError(f"tet {t} = {tets[t].tolist()} repeats a node")
+            raise SimulationError(f"tet {t} = {row} repeats a node")
         what = "inverted" if volume[j] < 0 else "zero-volume"
         raise SimulationError(
-            f"tet {t} = {tets[t].tolist()} is {what} at rest: volume {volume[j]:.6g} "
+            f"tet {t} = {row} is {what} at rest: volume {volume[j]:.6g} "
             f"(longest edge {longest[j]:.6g}); rest tets must be positively oriented"
         )
+
+
+#: the most list entries one thread moves in one piece when the incidence is updated
+_RUN = 1 << 14
 
 
 class Elements:
@@ -167,8 +184,9 @@ class Elements:
         self.device = device
         self.threads = threads
         self.rest_host = np.ascontiguousarray(rest, dtype=np.float32)
-        self.tets_host = np.ascontiguousarray(tets, dtype=np.int32).reshape(-1, 4)
-        self.alive_host = np.ascontiguousarray(alive, dtype=bool)
+        # copies: on the CPU the device's tets and live flags are these arrays, never the caller's
+        self.tets_host = np.array(tets, dtype=np.int32).reshape(-1, 4)
+        self.alive_host = np.array(alive, dtype=bool)
         self.young_host = np.asarray(young, dtype=np.float64)
         self.poisson_host = np.asarray(poisson, dtype=np.float64)
         self.density_host = np.asarray(density, dtype=np.float64)
@@ -178,6 +196,8 @@ class Elements:
         # keys and, alternating, its lists (_spare: the one the next rebuild writes)
         self._bases: dict = {}
         self._spare = 1
+        # the kept host buffers under the per-tet host arrays (:meth:`_grown`)
+        self._host_bases: dict = {}
         self.rigid_host = np.zeros(self.tet_count, dtype=bool)
         ids = np.arange(self.tet_count, dtype=np.int32)
         check_tets(self.rest_host, self.tets_host, self.alive_host, ids, threads)
@@ -247,44 +267,144 @@ class Elements:
         params = {n: values(n, v, None, np.float64, None) for n, v in
                   (("young", young), ("poisson", poisson), ("density", density))}  # fmt: skip
         if rest is not None:
-            r = np.asarray(rest, dtype=np.float64)
+            r = np.asarray(rest)
             if r.ndim != 2 or r.shape[1] != 3 or len(r) < self.node_count:
                 raise SimulationError(
                     f"rebuild: rest must have shape (N', 3) with N' >= {self.node_count}, got {r.shape}"
                 )
-            bad = np.flatnonzero(~np.isfinite(r).all(axis=1))
-            if bad.size:
+            if not np.isfinite(r).all():
+                bad = np.flatnonzero(~np.isfinite(r).all(axis=1))
                 raise SimulationError(f"rebuild: rest[{bad[0]}] = {r[bad[0]].tolist()} is not finite")
+        # the listed slots' new rows, checked before anything changes (old slots keep what is not given)
+        old = ids[ids < T]
+        at_old = ids < T
 
-        def grow(a, fill):
-            return np.concatenate([a, np.full((grown - T, *a.shape[1:]), fill, dtype=a.dtype)])
+        def rows(given, host, fill):
+            out = np.empty((len(ids), *host.shape[1:]), dtype=host.dtype)
+            out[at_old] = host[old]
+            out[~at_old] = fill
+            if given is not None:
+                out[:] = given
+            return out
 
-        tets_h, alive_h = grow(self.tets_host, 0), grow(self.alive_host, True)
-        if tets is not None:
-            tets_h[ids] = tets
-        if alive is not None:
-            alive_h[ids] = alive
+        tets_ids = rows(tets, self.tets_host, 0)
+        alive_ids = rows(alive, self.alive_host, True)
         mats = {}
         for name, host, bounds, positive in (("young", self.young_host, None, True),
                                              ("poisson", self.poisson_host, (-1.0, 0.5), False),
                                              ("density", self.density_host, None, True)):  # fmt: skip
-            h = grow(host, np.nan)
-            if params[name] is not None:
-                h[ids] = params[name]
-            sub = material_values(name, h[ids], np.zeros(len(ids), dtype=np.int32), positive=positive, bounds=bounds,
-                                  tet_ids=ids)
-            h[ids] = sub
-            mats[name] = h
+            mats[name] = material_values(name, rows(params[name], host, np.nan), np.zeros(len(ids), dtype=np.int32),
+                                         positive=positive, bounds=bounds, tet_ids=ids)  # fmt: skip
         rest_h = self.rest_host if rest is None else np.ascontiguousarray(rest, dtype=np.float32)
-        check_tets(rest_h, tets_h, alive_h, ids, self.threads)
+        check_tets(rest_h, tets_ids, alive_ids, np.arange(len(ids)), self.threads, names=ids)
         touched = None
         if tet_ids is not None:  # the nodes whose incidence changed: the changed tets' corners, old and new
-            touched = np.unique(np.concatenate([self.tets_host[ids[ids < T]].ravel(), tets_h[ids].ravel(),
+            touched = np.unique(np.concatenate([self.tets_host[old].ravel(), tets_ids.ravel(),
                                                 np.arange(self.node_count, len(rest_h))]))  # fmt: skip
-        self.rest_host, self.tets_host, self.alive_host = rest_h, tets_h, alive_h
-        self.young_host, self.poisson_host, self.density_host = mats["young"], mats["poisson"], mats["density"]
-        self.rigid_host = grow(self.rigid_host, False)
+        # commit: the per-tet host arrays grow in kept buffers (room for later cuts' tets) and take the rows
+        self.rest_host = rest_h
+        for name, value, fill in (("tets_host", tets_ids, 0), ("alive_host", alive_ids, True),
+                                  ("young_host", mats["young"], np.nan), ("poisson_host", mats["poisson"], np.nan),
+                                  ("density_host", mats["density"], np.nan), ("rigid_host", None, False)):  # fmt: skip
+            grown_host = self._grown(name, grown, fill)
+            if value is not None:
+                grown_host[ids] = value
+            setattr(self, name, grown_host)
         self._rebuild(ids.astype(np.int32), touched)
+
+    def _grown(self, name: str, rows: int, fill) -> np.ndarray:
+        """Host array ``name`` grown to ``rows`` rows (the new ones ``fill``), a view of a kept buffer with
+        room (:data:`~warpblob._stages.ROOM` more when it must be made): its first rows stay in place."""
+        a, base = getattr(self, name), self._host_bases.get(name)
+        if base is None or a.base is not base or len(base) < rows:
+            base = np.empty((rows + int(rows * ROOM), *a.shape[1:]), dtype=a.dtype)
+            base[: len(a)] = a
+            self._host_bases[name] = base
+        base[len(a) : rows] = fill
+        return base[:rows]
+
+    def _lists_buffer(self, count: int) -> wp.array:
+        """The buffer of the next incidence lists: of two kept ones, the one the lists in use are not in."""
+        self._spare = spare = 1 - self._spare  # (0, 1, 0, ...: never the buffer of the lists in use)
+        self._bases[("corners", spare)], lists = room(self._bases.get(("corners", spare)), count, wp.int32,
+                                                      self.device)  # fmt: skip
+        return lists
+
+    def _sort_incidence(self) -> None:
+        """The incidence (:attr:`node_offsets`, :attr:`node_corners`) of every node by a sort of all corners."""
+        dev, T, N = self.device, self.tet_count, self.node_count
+        # corners of dead tets sort past the last node, out of every row; the second half is the radix
+        # sort's scratch (not initialized); the columns are the corners' indices. On the CPU the keys are
+        # written in a kept buffer (scratch), and the lists into the one of two kept buffers the current
+        # lists are not in (fresh pages of a 16 MB array at 1M tets cost more than the sort's writes)
+        count = 4 * T
+        cpu = not wp.get_device(dev).is_cuda
+        if cpu:
+            self._bases["rows"], rows_wp = room(self._bases.get("rows"), count, wp.int32, dev)
+            rows = rows_wp.numpy()
+            order = self._lists_buffer(count)
+        else:
+            rows = np.empty(2 * count, dtype=np.int32)
+            order = None
+        corner_nodes = rows[:count].reshape(T, 4)
+        corner_nodes[:] = self.tets_host
+        corner_nodes[~self.alive_host] = N
+        if not cpu:
+            rows_wp = wp.array(rows, dtype=wp.int32, device=dev)
+        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads, order)
+        self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
+        self.node_corners = wp.array(corners, dtype=wp.int32, device=dev, copy=not cpu)
+        self._offsets_host = offsets
+
+    def _update_incidence(self, ids: np.ndarray, touched: np.ndarray) -> None:
+        """The incidence after tets ``ids`` changed, from the lists in use: the lists of the ``touched`` nodes
+        (every corner of those tets, old and new; ascending) merged anew, every other list moved as it was
+        (kernels over the touched and the old nodes; the same lists as :meth:`_sort_incidence`'s)."""
+        dev, T, N, th = self.device, self.tet_count, self.node_count, self.threads
+        old_offsets, old_corners = self.node_offsets, self.node_corners
+        old_n = len(self._offsets_host) - 1
+        changed = np.zeros(T, dtype=np.uint8)
+        changed[ids] = 1
+        live = np.unique(ids[self.alive_host[ids]]).astype(np.int64)
+        nodes = self.tets_host[live].ravel()
+        cols = (4 * live[:, None] + np.arange(4)).ravel()
+        order = np.lexsort((cols, nodes))
+        nodes, cols = nodes[order], cols[order].astype(np.int32)
+        # every changed tet's corner is a touched node: the nodes' runs follow each other in touched order
+        add_start = np.append(np.searchsorted(nodes, touched), len(nodes)).astype(np.int32)
+        touched_wp = wp.array(touched, dtype=wp.int32, device=dev)
+        changed_wp = wp.array(changed, dtype=wp.uint8, device=dev)
+        add_start_wp = wp.array(add_start, dtype=wp.int32, device=dev)
+        count = wp.empty(len(touched), dtype=wp.int32, device=dev)
+        launch(k.incidence_count_kernel, len(touched), [touched_wp, old_offsets, old_corners, changed_wp,
+               add_start_wp], [count], dev, th, min_chunk=1 << 12)  # fmt: skip
+        counts = np.zeros(N, dtype=np.int32)
+        counts[:old_n] = np.diff(self._offsets_host)
+        counts[touched] = count.numpy()
+        offsets = np.zeros(N + 1, dtype=np.int32)
+        np.cumsum(counts, out=offsets[1:])
+        lists = self._lists_buffer(max(int(offsets[-1]), 1))[: int(offsets[-1])]
+        offsets_wp = wp.array(offsets, dtype=wp.int32, device=dev)
+        # the untouched nodes' lists move as they were, in runs between touched nodes (each run one shift),
+        # cut in pieces of at most _RUN entries so that the threads share the work
+        inside = touched[touched < old_n]
+        first = np.concatenate([[0], inside + 1])  # each run's first and past-last old node
+        last = np.concatenate([inside, [old_n]])
+        start, end = self._offsets_host[first].astype(np.int64), self._offsets_host[last].astype(np.int64)
+        shift = offsets[first].astype(np.int64) - start
+        pieces = np.maximum(-(-(end - start) // _RUN), 1)
+        run = np.repeat(np.arange(len(first)), pieces)
+        start = start[run] + _RUN * (np.arange(len(run)) - np.repeat(np.cumsum(pieces) - pieces, pieces))
+        end = np.minimum(start + _RUN, end[run])
+        runs = [wp.array(a.astype(np.int32), dtype=wp.int32, device=dev) for a in (start, end, shift[run])]
+        # (one piece per thread: a piece's launch costs about what moving 10^4 entries does)
+        pieces = th if th is not None else thread_count()
+        launch(k.move_runs_kernel, len(run), [old_corners, *runs], [lists], dev, th,
+               min_chunk=max(1, -(-len(run) // pieces)))  # fmt: skip
+        launch(k.incidence_merge_kernel, len(touched), [touched_wp, old_offsets, old_corners, changed_wp,
+               add_start_wp, wp.array(cols, dtype=wp.int32, device=dev), offsets_wp], [lists], dev, th,
+               min_chunk=1 << 12)  # fmt: skip
+        self.node_offsets, self.node_corners, self._offsets_host = offsets_wp, lists, offsets
 
     def set_rigid(self, mask) -> None:
         """Mark the (T,) bool ``mask`` of tets as rigid: zero Lamé parameters on the device (mass unchanged)."""
@@ -297,26 +417,30 @@ class Elements:
     def _lame(self, ids: np.ndarray | None = None) -> None:
         """Lamé parameters on the device (zero for rigid tets): of every tet, or of tets ``ids`` only (the
         others as before, new slots past the old count)."""
-        T, old = self.tet_count, getattr(self, "_lame_host", None)
-        if ids is None or old is None or len(old[0]) > T:
-            mu, lam = (a.astype(np.float32) for a in lame(self.young_host, self.poisson_host))
-            mu[self.rigid_host] = 0.0
-            lam[self.rigid_host] = 0.0
-        else:
-            mu, lam = (np.concatenate([a, np.zeros(T - len(a), dtype=np.float32)]) for a in old)
-            ids = np.asarray(ids, dtype=np.int64)
-            rigid = self.rigid_host[ids]
-            m, l = lame(self.young_host[ids], self.poisson_host[ids])
-            mu[ids] = np.where(rigid, 0.0, m)
-            lam[ids] = np.where(rigid, 0.0, l)
-        self._lame_host = (mu, lam)
-        if getattr(self, "mu", None) is not None and self.mu.shape[0] == T:
-            # in place: the solver's recorded launches hold these arrays
-            self.mu.assign(mu)
-            self.lam.assign(lam)
-        else:
-            self.mu = wp.array(mu, dtype=float, device=self.device)
-            self.lam = wp.array(lam, dtype=float, device=self.device)
+        self._per_tet(("mu", "lam"), ids, lambda rows: np.where(self.rigid_host[rows], 0.0,
+                                                                  lame(self.young_host[rows], self.poisson_host[rows])))
+
+    def _per_tet(self, names: tuple, ids: np.ndarray | None, values) -> None:
+        """Device arrays ``names`` (T,) float of per-tet values: ``values(rows)`` ((len(names), len(rows)))
+        written for tets ``ids`` (None: all) into kept float32 host buffers, the other tets' kept in place.
+        On the CPU the device arrays are those buffers; on CUDA copies, assigned in place where the length
+        is unchanged (the solver's recorded launches hold them; :meth:`set_rigid` changes them)."""
+        T, dev = self.tet_count, self.device
+        rows = np.arange(T) if ids is None else np.asarray(ids, dtype=np.int64)
+        computed = np.asarray(values(rows))
+        cuda = wp.get_device(dev).is_cuda
+        for name, value in zip(names, computed):
+            host = f"_{name}_host"
+            if getattr(self, host, None) is None:
+                setattr(self, host, np.zeros(0, dtype=np.float32))
+            view = self._grown(host, T, 0.0)
+            view[rows] = value
+            setattr(self, host, view)
+            current = getattr(self, name, None)
+            if cuda and current is not None and current.shape[0] == T:
+                current.assign(view)
+            else:
+                setattr(self, name, wp.array(view, dtype=float, device=dev, copy=cuda))
 
     def _rebuild(self, ids: np.ndarray, touched: np.ndarray | None = None) -> None:
         """Element data of tets ``ids``, the incidence, and the masses of the ``touched`` nodes (None: all;
@@ -324,10 +448,12 @@ class Elements:
         dev, T, N = self.device, self.tet_count, self.node_count
         old_n = self.mass.shape[0] if getattr(self, "mass", None) is not None else 0
         self.rest = wp.array(self.rest_host, dtype=wp.vec3, device=dev)
-        self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev)
-        alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
+        # on the CPU the tets and live flags are the host arrays themselves (written only by a rebuild)
+        copy = wp.get_device(dev).is_cuda
+        self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev, copy=copy)
+        alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev, copy=copy)
         self._lame(ids)
-        self.density = wp.array(self.density_host.astype(np.float32), dtype=float, device=dev)
+        self._per_tet(("density",), ids, lambda rows: self.density_host[rows][None])
         # kept buffers (room to grow): the tets not in ids keep their values in place, the new ones are in ids
         keep = min(T, self.dm_inv.shape[0])
         for name, dtype in (("dm_inv", wp.mat33), ("volume", float)):
@@ -340,28 +466,10 @@ class Elements:
             ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
                    [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
-        # corners of dead tets sort past the last node, out of every row; the second half is the radix
-        # sort's scratch (not initialized); the columns are the corners' indices. On the CPU the keys are
-        # written in a kept buffer (scratch), and the lists into the one of two kept buffers the current
-        # lists are not in (fresh pages of a 16 MB array at 1M tets cost more than the sort's writes)
-        count = 4 * T
-        cpu = not wp.get_device(dev).is_cuda
-        if cpu:
-            self._bases["rows"], rows_wp = room(self._bases.get("rows"), count, wp.int32, dev)
-            rows = rows_wp.numpy()
-            self._spare = spare = 1 - self._spare  # (0, 1, 0, ...: never the buffer of the lists in use)
-            self._bases[("corners", spare)], order = room(self._bases.get(("corners", spare)), count, wp.int32, dev)
+        if touched is not None and old_n and getattr(self, "node_offsets", None) is not None:
+            self._update_incidence(ids, touched)
         else:
-            rows = np.empty(2 * count, dtype=np.int32)
-            order = None
-        corner_nodes = rows[:count].reshape(T, 4)
-        corner_nodes[:] = self.tets_host
-        corner_nodes[~self.alive_host] = N
-        if not cpu:
-            rows_wp = wp.array(rows, dtype=wp.int32, device=dev)
-        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads, order)
-        self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
-        self.node_corners = wp.array(corners, dtype=wp.int32, device=dev, copy=not cpu)
+            self._sort_incidence()
         mass, base = self.mass if old_n else None, self._bases.get("mass")
         self._bases["mass"], self.mass = room(base, N, float, dev)
         gather = [self.node_offsets, self.node_corners, self.volume, self.density]

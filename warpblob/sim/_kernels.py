@@ -271,6 +271,81 @@ def gather_masses_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def incidence_count_kernel(
+    touched: wp.array(dtype=wp.int32),
+    old_offsets: wp.array(dtype=wp.int32),
+    old_corners: wp.array(dtype=wp.int32),
+    changed: wp.array(dtype=wp.uint8),
+    add_start: wp.array(dtype=wp.int32),
+    offset: int,
+    count: wp.array(dtype=wp.int32),
+):
+    """Per touched node: its old corners whose tet is unchanged plus its corners among the changed tets'
+    (``add_start[u]..add_start[u + 1]``); a node past the old ones has no old list."""
+    u = wp.tid() + offset
+    i = touched[u]
+    c = add_start[u + 1] - add_start[u]
+    if i < old_offsets.shape[0] - 1:
+        for m in range(old_offsets[i], old_offsets[i + 1]):
+            if changed[old_corners[m] // 4] == wp.uint8(0):
+                c += 1
+    count[u] = c
+
+
+@wp.kernel(enable_backward=False)
+def move_runs_kernel(
+    source: wp.array(dtype=wp.int32),
+    run_start: wp.array(dtype=wp.int32),
+    run_end: wp.array(dtype=wp.int32),
+    shift: wp.array(dtype=wp.int32),
+    offset: int,
+    target: wp.array(dtype=wp.int32),
+):
+    """``target[m + shift[r]] = source[m]`` for ``m`` in run ``r``: ``run_start[r]..run_end[r]``."""
+    r = wp.tid() + offset
+    d = shift[r]
+    for m in range(run_start[r], run_end[r]):
+        target[m + d] = source[m]
+
+
+@wp.kernel(enable_backward=False)
+def incidence_merge_kernel(
+    touched: wp.array(dtype=wp.int32),
+    old_offsets: wp.array(dtype=wp.int32),
+    old_corners: wp.array(dtype=wp.int32),
+    changed: wp.array(dtype=wp.uint8),
+    add_start: wp.array(dtype=wp.int32),
+    add_corners: wp.array(dtype=wp.int32),
+    offsets: wp.array(dtype=wp.int32),
+    offset: int,
+    corners: wp.array(dtype=wp.int32),
+):
+    """A touched node's list: its old corners of unchanged tets merged with its corners of changed tets
+    (both ascending), ascending, as a sort of the whole incidence gives it."""
+    u = wp.tid() + offset
+    i = touched[u]
+    m = int(0)
+    m_end = int(0)
+    if i < old_offsets.shape[0] - 1:
+        m = old_offsets[i]
+        m_end = old_offsets[i + 1]
+    a = add_start[u]
+    a_end = add_start[u + 1]
+    d = offsets[i]
+    while m < m_end or a < a_end:
+        if m < m_end and changed[old_corners[m] // 4] != wp.uint8(0):
+            m += 1
+        elif a >= a_end or (m < m_end and old_corners[m] < add_corners[a]):
+            corners[d] = old_corners[m]
+            d += 1
+            m += 1
+        else:
+            corners[d] = add_corners[a]
+            d += 1
+            a += 1
+
+
+@wp.kernel(enable_backward=False)
 def assemble_system_kernel(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
