@@ -46,6 +46,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
+from .._stages import room
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
 from ._coarse import node_pieces
@@ -311,20 +312,26 @@ class Simulation:
         dev, e = self.device, self.elements
         self._carry = None  # (state, tets, changed tets): what the next _refresh may carry over (rebuild)
         N, T = e.node_count, e.tet_count
-        # double buffers: a step writes the other one, so a failed step leaves the state as it was
-        x = wp.array(positions.astype(np.float32), dtype=wp.vec3, device=dev)
-        v = wp.array(velocities.astype(np.float32), dtype=wp.vec3, device=dev)
-        self._x = [x, wp.zeros_like(x)]
-        self._v = [v, wp.zeros_like(v)]
+        # the per-node buffers live in kept bases with room (a rebuild after a cut reuses them: fresh pages
+        # cost more than the writes); double buffers: a step writes the other one, so a failed step leaves
+        # the state as it was
+        self._x = [self._node_buffer(f"x{i}", N, wp.vec3) for i in (0, 1)]
+        self._v = [self._node_buffer(f"v{i}", N, wp.vec3) for i in (0, 1)]
+        self._x[0].assign(np.asarray(positions, dtype=np.float32))
+        self._v[0].assign(np.asarray(velocities, dtype=np.float32))
+        for buffer in (self._x[1], self._v[1]):
+            buffer.zero_()
         # a rebuild's element states keep their buffers: the current one becomes state 0 (its values for the
         # tets that stay are then in place for the carried pass, see _refresh)
         old = getattr(self, "_states", None)
         reuse = (None, None) if old is None else (old[self._cur], old[1 - self._cur])
         self._cur = 0
-        self._target = wp.clone(self._x[0])
-        self._external = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self._moved = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self._flags = wp.zeros(N, dtype=wp.uint8, device=dev)
+        self._target = self._node_buffer("target", N, wp.vec3)
+        wp.copy(self._target, self._x[0])
+        self._external, self._moved = (self._node_buffer(name, N, wp.vec3) for name in ("external", "moved"))
+        self._flags = self._node_buffer("flags", N, wp.uint8)
+        for buffer in (self._external, self._moved, self._flags):
+            buffer.zero_()
         self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
         # the structure's piece count (through faces, so through nodes too), where it knows it: one piece
         # spares the coarse space its count of the pieces, and a cut that leaves the count lets it carry over
@@ -340,11 +347,17 @@ class Simulation:
         self._momentum = float(np.sqrt(np.sum(self._mass**2)))
         if not (self._mass > 0).any():
             raise SimulationError("volume has no mass: every live tet has zero volume")
-        lo = e.rest_host[self._mass > 0].min(axis=0)
-        hi = e.rest_host[self._mass > 0].max(axis=0)
+        massive = e.rest_host[self._mass > 0]
+        lo, hi = massive.min(axis=0), massive.max(axis=0)
         self._size = float(np.linalg.norm(hi - lo)) or 1.0
         self._fixed_mask = np.zeros(N, dtype=bool)
         self._moving = False
+
+    def _node_buffer(self, name: str, n: int, dtype) -> wp.array:
+        """(n,) buffer ``name`` (not initialized) in a base kept between rebuilds (:func:`room`)."""
+        kept = self.__dict__.setdefault("_kept", {})
+        kept[name], view = room(kept.get(name), n, dtype, self.device)
+        return view
 
     def _coarse_stats(self) -> dict:
         c = self._solver.coarse
@@ -1012,7 +1025,8 @@ class Simulation:
             raise SimulationError(f"rebuild: {grow} nodes were added; new_sources must be ({grow},) ints in "
                                   f"[0, {old_n}), got {new_sources!r}")  # fmt: skip
         x, v = self.positions, self.velocities
-        target, external, mask = self._target.numpy(), self._external.numpy(), self._fixed_mask
+        # (copies: the new buffers are the old ones where they have room)
+        target, external, mask = self._target.numpy().copy(), self._external.numpy().copy(), self._fixed_mask
         if material_new is not None:
             values = np.asarray(material_new)
             slots = np.arange(e.tet_count) if tet_ids is None else np.asarray(tet_ids).ravel()
@@ -1038,8 +1052,7 @@ class Simulation:
         # a cut's kind of edit (the changed old tets all dead now) lets the coarse space be carried over
         old_ids = None if tet_ids is None else np.asarray(tet_ids, dtype=np.int64).ravel()
         follow = src is not None and old_ids is not None and not e.alive_host[old_ids[old_ids < old_t]].any()
-        self._allocate(pad(x, added).astype(np.float64), pad(v, vnew).astype(np.float64),
-                       src.astype(np.int64) if follow else None)  # fmt: skip
+        self._allocate(pad(x, added), pad(v, vnew), src.astype(np.int64) if follow else None)
         self._carry = carry
         self._target.assign(pad(target, added))
         self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))

@@ -258,22 +258,21 @@ class ImplicitSolver:
         self.preconditioner = preconditioner
         e, dev = elements, elements.device
         T, N = e.tet_count, e.node_count
-        self.contact_force = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.contact_weight = wp.zeros(N, dtype=float, device=dev)
-        self.contact_block = wp.zeros(N, dtype=wp.mat33, device=dev)
-        self.rhs = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.prescribed = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.axes = wp.zeros(N, dtype=wp.vec3, device=dev)
-        # the coarse space's filter: ``axes`` with the rigid bodies' nodes left out (they have their own block)
-        self.coarse_axes = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.ones = wp.full(N, wp.vec3(1.0, 1.0, 1.0), dtype=wp.vec3, device=dev)
-        self.inverse_block = wp.zeros(N, dtype=wp.mat33, device=dev)
+        # per-node buffers in the previous solver's kept bases where they have room (fresh pages cost more
+        # than the writes), set as new ones would be: zero, ``ones`` one
+        previous_bases, self._bases = getattr(previous, "_bases", {}), {}
+        for name, dtype in (("contact_force", wp.vec3), ("contact_weight", float), ("contact_block", wp.mat33),
+                            ("rhs", wp.vec3), ("prescribed", wp.vec3), ("axes", wp.vec3),
+                            ("coarse_axes", wp.vec3), ("ones", wp.vec3), ("inverse_block", wp.mat33),
+                            ("r", wp.vec3), ("z", wp.vec3), ("p", wp.vec3), ("Ap", wp.vec3)):  # fmt: skip
+            self._bases[name], view = room(previous_bases.get(name), N, dtype, dev)
+            view.zero_()
+            setattr(self, name, view)
+        # (``coarse_axes``: the coarse space's filter, ``axes`` with the rigid bodies' nodes left out: they
+        # have their own block)
+        self.ones.fill_(wp.vec3(1.0, 1.0, 1.0))
         # (not zeroed: every product writes all of it before a node's row reads its live corners)
-        self._corner_base, self.corner_out = room(getattr(previous, "_corner_base", None), 4 * T, wp.vec3, dev)
-        self.r = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.z = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.p = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.Ap = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self._bases["corners"], self.corner_out = room(previous_bases.get("corners"), 4 * T, wp.vec3, dev)
         blocks = block_count(N, dev)
         self.partials = wp.zeros((5, blocks), dtype=float, device=dev)
         th, P = threads, self.partials
