@@ -336,7 +336,6 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     cell_edges_np = np.asarray(structure.cell_edges)
     arrays = {"cell_nodes": _shared(cell_nodes_np, wp.vec4i, dev), "cell_edges": cell_edges_wp,
               "cell_alive": cell_alive_wp}  # fmt: skip
-    split_t = np.full(E, -1.0)
     rounds = 0
     state = _ParentState(structure, edge_nodes_np)
     sel = ~state.drop[hits]
@@ -349,7 +348,6 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         node_cut[sticky] = 1
     node_cut[state.protected] = 0
     dropped = np.zeros(len(hits), dtype=bool)
-    set_t = np.zeros(0, dtype=np.int64)
     # the cells that can get a code in any round: those at an end of a hit edge or at a given cut node (cut
     # nodes and the ends of cut edges are such nodes), found once (among the cells near those nodes, or by a
     # pass over every cell); each round codes only these
@@ -375,13 +373,11 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     own_c = state.record_of(candidates) < 0 if state.children.size else np.ones(M, dtype=bool)
     stored_code = np.full(M, -1, dtype=np.int64)
     stored: dict = {}
+    edge_cut = np.zeros(E, dtype=np.uint8)  # (written at the hit edges only, each round)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
-        edge_cut = np.zeros(E, dtype=np.uint8)
-        edge_cut[hits[keep]] = 1
-        split_t[set_t] = -1.0
-        set_t = hits[keep]
-        split_t[set_t] = t_hit[keep]
+        edge_cut[hits] = keep
+        split_t = _OnEdges(hits, np.where(keep, t_hit, -1.0), -1.0)
         launch(k.cell_codes_at_kernel, M,
                [candidates_wp, arrays["cell_nodes"], arrays["cell_edges"], _shared(edge_cut, wp.uint8, dev),
                 _shared(node_cut, wp.uint8, dev)], [code_wp], dev, threads, min_chunk=8192)  # fmt: skip
@@ -558,6 +554,21 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
     # one launch below 2048 units (a 10K-tet cut): waking the pool costs more than the second thread gives
     launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=1024)
     return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
+
+
+class _OnEdges:
+    """Values on a few edges (``edges`` ascending, ``values`` theirs), ``fill`` on every other: indexed like an
+    (E,) array (a gather at any shape of edge ids), without one."""
+
+    def __init__(self, edges: np.ndarray, values: np.ndarray, fill: float):
+        self.edges, self.values, self.fill = np.asarray(edges), np.asarray(values), fill
+
+    def __getitem__(self, index) -> np.ndarray:
+        index = np.asarray(index)
+        if not len(self.edges):
+            return np.full(index.shape, self.fill)
+        i = np.minimum(np.searchsorted(self.edges, index), len(self.edges) - 1)
+        return np.where(self.edges[i] == index, self.values[i], self.fill)
 
 
 class _ParentState:
