@@ -85,6 +85,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
+from .._stages import ROOM, room
 from ..mesh._structure import _connected, _unique_inverse
 from . import _kernels as k
 
@@ -253,15 +254,16 @@ class CoarseSpace:
         # per tet, one slot per pair of the distinct aggregates of its corners (u of them: u^2 slots, mostly 1),
         # numbered by the aggregates' order of first appearance among the corners; slots grouped by pair
         # (kernels: a tet's groups are its corners' aggregates numbered by first appearance)
-        tets_wp, alive_wp = e.tets, wp.array(e.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
+        tets_wp, alive_wp = e.tets, e.alive
         aggregate_wp = wp.array(node_aggregate, dtype=wp.int32, device=dev)
         squares = wp.empty(T, dtype=wp.int32, device=dev)
         launch(k.tet_aggregate_counts_kernel, T, [tets_wp, alive_wp, aggregate_wp], [squares], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
-        start = np.zeros(T + 1, dtype=np.int64)
+        # (in a host buffer with room: a followed space appends its added tets' starts in place)
+        start = np.zeros(T + 1 + int(T * ROOM), dtype=np.int64)[: T + 1]
         np.cumsum(squares.numpy(), out=start[1:])
         slot_code = np.empty(int(start[-1]), dtype=np.int64)
-        start_wp = wp.array(start, dtype=wp.int64, device=dev)
+        start_wp = self._array(start, wp.int64)
         launch(k.tet_pair_slots_kernel, T, [tets_wp, alive_wp, aggregate_wp, start_wp, int(G)],
                [wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
@@ -271,7 +273,7 @@ class CoarseSpace:
         # (a stable sort of narrow keys: numpy's radix sort where they fit 16 bits)
         narrow = pair_of_slot.astype(np.uint16) if len(pairs) <= 1 << 16 else pair_of_slot
         pair_slots = np.argsort(narrow, kind="stable").astype(np.int32)
-        self._set_slots(e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots)
+        self._set_slots(e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots, {})
         self.pair_aggregates = self._array(np.stack([pairs // G, pairs % G], axis=1).astype(np.int32), wp.vec2i)
         # (G, G) blocks of 6 x 6: block (g, h) couples the modes of aggregates g and h
         self.coarse = wp.zeros((G, G), dtype=wp.spatial_matrix, device=dev)
@@ -292,9 +294,11 @@ class CoarseSpace:
         dev = self.elements.device
         return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=dev.is_cuda)
 
-    def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots) -> None:
+    def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots,
+                   kept: dict) -> None:  # fmt: skip
         """Store the aggregates, the slot layout and its grouping (kept on the host too, for :meth:`follow`),
-        and make the per-node and per-slot buffers."""
+        and make the per-node and per-slot buffers (in the bases ``kept``, the space followed from, where
+        they have room: fresh pages cost more than the writes)."""
         dev, N, G = e.device, e.node_count, self.aggregate_count
         order = np.argsort(node_aggregate, kind="stable")
         order = order[node_aggregate[order] >= 0]
@@ -307,9 +311,13 @@ class CoarseSpace:
         # a tet's slots are found again from these by the coupling kernel (no (16 T,) table of them)
         self.slot_start, self.tet_alive = start_wp, alive_wp
         self.pair_offsets, self.pair_slots = self._array(pair_offsets.astype(np.int32)), self._array(pair_slots)
-        self.slots = wp.empty(int(start[-1]), dtype=wp.spatial_matrix, device=dev)  # (zeroed by each refresh)
-        self.node_mode = wp.zeros(N, dtype=wp.vec3, device=dev)
-        self.reference = wp.zeros(N, dtype=wp.vec3, device=dev)
+        self._bases = {}
+        # (slots: zeroed by each refresh)
+        self._bases["slots"], self.slots = room(kept.get("slots"), int(start[-1]), wp.spatial_matrix, dev)
+        for name in ("node_mode", "reference"):
+            self._bases[name], view = room(kept.get(name), N, wp.vec3, dev)
+            view.zero_()
+            setattr(self, name, view)
         self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
         self._aggregated = len(order)
         self.refreshes, self.refresh_seconds = 0, 0.0
@@ -357,11 +365,14 @@ class CoarseSpace:
             return None
         node_aggregate = np.concatenate([host["aggregate"], host["aggregate"][sources]])
         node_aggregate[e.mass.numpy() <= 0] = -1
-        alive_wp = wp.array(e.alive_host.view(np.uint8), dtype=wp.uint8, device=dev)
+        alive_wp = e.alive
         aggregate_wp = wp.array(node_aggregate, dtype=wp.int32, device=dev)
         added = T - old_t
-        start = np.empty(T + 1, dtype=np.int64)
-        start[: old_t + 1] = host["start"]
+        # the old tets' slot starts stay where they are (the host buffer's room), the added ones' follow
+        start = host["start"]
+        if start.base is None or len(start.base) < T + 1:
+            start = np.concatenate([start, np.zeros(T - old_t + int(T * ROOM), dtype=np.int64)])
+        start = (start if start.base is None else start.base)[: T + 1]
         pairs, pair_offsets, pair_slots = host["pairs"], host["pair_offsets"], host["pair_slots"]
         if added:
             # the added tets' slots (one launch each over them alone: a cut adds a few thousand)
@@ -370,7 +381,7 @@ class CoarseSpace:
                       device=dev)  # fmt: skip
             np.cumsum(squares.numpy()[old_t:], out=start[old_t + 1 :])
             start[old_t + 1 :] += start[old_t]
-        start_wp = wp.array(start, dtype=wp.int64, device=dev)
+        start_wp = c_start = self._array(start, wp.int64)
         first_new, total = int(start[old_t]), int(start[-1])
         if total > first_new:
             codes = wp.empty(total, dtype=wp.int64, device=dev)
@@ -391,7 +402,7 @@ class CoarseSpace:
         c = CoarseSpace.__new__(CoarseSpace)
         c.elements, c.axes, c.threads, c.cell = e, axes, self.threads, self.cell
         c.aggregate_count, c.size = G, self.size
-        c._set_slots(e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots)
+        c._set_slots(e, node_aggregate, start, c_start, alive_wp, pairs, pair_offsets, pair_slots, self._bases)
         # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
         for name in ("pair_aggregates", "coarse", "first_host", "first", "lower", "scale", "work", "rc", "zc"):
             setattr(c, name, getattr(self, name))

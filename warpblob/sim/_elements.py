@@ -451,7 +451,7 @@ class Elements:
         # on the CPU the tets and live flags are the host arrays themselves (written only by a rebuild)
         copy = wp.get_device(dev).is_cuda
         self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev, copy=copy)
-        alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev, copy=copy)
+        self.alive = alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev, copy=copy)
         self._lame(ids)
         self._per_tet(("density",), ids, lambda rows: self.density_host[rows][None])
         # kept buffers (room to grow): the tets not in ids keep their values in place, the new ones are in ids
