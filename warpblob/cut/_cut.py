@@ -365,7 +365,9 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         launch(k.cells_at_nodes_kernel, C, [arrays["cell_nodes"], arrays["cell_alive"],
                _shared(at_hit, wp.uint8, dev)], [flags_c], dev, threads, min_chunk=_CHEAP)  # fmt: skip
         candidates = _compact(flags_c, dev, threads)
-    candidates_wp = _shared(candidates, wp.int32, dev)
+    # their rows, gathered once: a round's codes read them in order (rows gathered from the whole mesh's
+    # arrays each round would miss the cache on every one)
+    candidate_rows = [_shared(cell_nodes_np[candidates], wp.vec4i, dev), _shared(cell_edges_np[candidates], vec6i, dev)]
     code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
     # a cell's unit and its table entry depend on its code only (its corners, edges and their split points are
     # fixed within a cut): a round re-classifies the cells whose code changed, and the progressive parents
@@ -378,9 +380,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut[hits] = keep
         split_t = _OnEdges(hits, np.where(keep, t_hit, -1.0), -1.0)
-        launch(k.cell_codes_at_kernel, M,
-               [candidates_wp, arrays["cell_nodes"], arrays["cell_edges"], _shared(edge_cut, wp.uint8, dev),
-                _shared(node_cut, wp.uint8, dev)], [code_wp], dev, threads, min_chunk=8192)  # fmt: skip
+        launch(k.cell_codes_kernel, M, [*candidate_rows, _shared(edge_cut, wp.uint8, dev),
+               _shared(node_cut, wp.uint8, dev)], [code_wp], dev, threads, min_chunk=8192)  # fmt: skip
         codes = code_wp.numpy().astype(np.int64)
         # pieces of a progressive parent are cut through their parent
         changed = np.flatnonzero((codes != 0) & own_c)

@@ -11,7 +11,6 @@ from ..mesh._tetmesh import TET_EDGES_WP, TET_FACES_WP
 from ..sim._elements import DEGENERATE_VOLUME
 
 __all__ = [
-    "cell_codes_at_kernel",
     "cell_codes_kernel",
     "cells_at_nodes_kernel",
     "classify_units_kernel",
@@ -162,25 +161,22 @@ def flag_positive_kernel(values: wp.array(dtype=float), offset: int, flags: wp.a
 def cell_codes_kernel(
     cell_nodes: wp.array(dtype=wp.vec4i),
     cell_edges: wp.array(dtype=vec6i),
-    cell_alive: wp.array(dtype=wp.uint8),
     edge_cut: wp.array(dtype=wp.uint8),
     node_cut: wp.array(dtype=wp.uint8),
     offset: int,
     code: wp.array(dtype=wp.int32),
-    changed: wp.array(dtype=wp.int32),
 ):
-    """Per cell: ``edge_code | node_code << 6`` (6 cut-edge bits in TET_EDGES order, 4 cut-node bits)."""
-    c = wp.tid() + offset
+    """Per cell (the rows of the cells a cut may code, gathered once): ``edge_code | node_code << 6`` (6
+    cut-edge bits in TET_EDGES order, 4 cut-node bits)."""
+    i = wp.tid() + offset
     value = int(0)
-    if cell_alive[c] != wp.uint8(0):
-        for j in range(6):
-            if edge_cut[cell_edges[c][j]] != wp.uint8(0):
-                value = value | (1 << j)
-        for k in range(4):
-            if node_cut[cell_nodes[c][k]] != wp.uint8(0):
-                value = value | (1 << (6 + k))
-    code[c] = value
-    changed[c] = wp.where(value != 0, 1, 0)
+    for j in range(6):
+        if edge_cut[cell_edges[i][j]] != wp.uint8(0):
+            value = value | (1 << j)
+    for m in range(4):
+        if node_cut[cell_nodes[i][m]] != wp.uint8(0):
+            value = value | (1 << (6 + m))
+    code[i] = value
 
 
 @wp.kernel(enable_backward=False)
@@ -199,29 +195,6 @@ def cells_at_nodes_kernel(
             if node_mark[cell_nodes[c][k]] != wp.uint8(0):
                 f = 1
     flags[c] = f
-
-
-@wp.kernel(enable_backward=False)
-def cell_codes_at_kernel(
-    cells: wp.array(dtype=wp.int32),
-    cell_nodes: wp.array(dtype=wp.vec4i),
-    cell_edges: wp.array(dtype=vec6i),
-    edge_cut: wp.array(dtype=wp.uint8),
-    node_cut: wp.array(dtype=wp.uint8),
-    offset: int,
-    code: wp.array(dtype=wp.int32),
-):
-    """:func:`cell_codes_kernel` for the listed (live) cells only."""
-    i = wp.tid() + offset
-    c = cells[i]
-    value = int(0)
-    for j in range(6):
-        if edge_cut[cell_edges[c][j]] != wp.uint8(0):
-            value = value | (1 << j)
-    for m in range(4):
-        if node_cut[cell_nodes[c][m]] != wp.uint8(0):
-            value = value | (1 << (6 + m))
-    code[i] = value
 
 
 @wp.kernel(enable_backward=False)
