@@ -367,7 +367,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         candidates = _compact(flags_c, dev, threads)
     # their rows, gathered once: a round's codes read them in order (rows gathered from the whole mesh's
     # arrays each round would miss the cache on every one)
-    candidate_rows = [_shared(cell_nodes_np[candidates], wp.vec4i, dev), _shared(cell_edges_np[candidates], vec6i, dev)]
+    rows_nodes, rows_edges = cell_nodes_np[candidates], cell_edges_np[candidates]
+    candidate_rows = [_shared(rows_nodes, wp.vec4i, dev), _shared(rows_edges, vec6i, dev)]
     code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
     # a cell's unit and its table entry depend on its code only (its corners, edges and their split points are
     # fixed within a cut): a round re-classifies the cells whose code changed, and the progressive parents
@@ -376,27 +377,30 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     stored_code = np.full(M, -1, dtype=np.int64)
     stored: dict = {}
     edge_cut = np.zeros(E, dtype=np.uint8)  # (written at the hit edges only, each round)
+    hit_slots = _OnEdges(hits, E, -1.0)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut[hits] = keep
-        split_t = _OnEdges(hits, np.where(keep, t_hit, -1.0), -1.0)
+        split_t = hit_slots.at(np.where(keep, t_hit, -1.0))
         launch(k.cell_codes_kernel, M, [*candidate_rows, _shared(edge_cut, wp.uint8, dev),
                _shared(node_cut, wp.uint8, dev)], [code_wp], dev, threads, min_chunk=8192)  # fmt: skip
         codes = code_wp.numpy().astype(np.int64)
         # pieces of a progressive parent are cut through their parent
         changed = np.flatnonzero((codes != 0) & own_c)
         stale = changed[stored_code[changed] != codes[changed]]
-        fresh = _cell_units(candidates[stale], codes[stale], cell_nodes_np, cell_edges_np, edge_nodes_np, split_t)
+        fresh = _cell_units(candidates[stale], codes[stale], rows_nodes[stale], rows_edges[stale], edge_nodes_np,
+                            split_t)  # fmt: skip
         extra = _parent_units(state, edge_nodes_np, edge_cut, split_t, node_cut)
         rows = fresh if extra is None else {name: np.concatenate([fresh[name], extra[name]]) for name in fresh}
         rows.update(zip(_CLASSIFIED, _classify_units(tables, rows, structure.node_rest, dev, threads)))
-        if not stored:
-            stored = {name: np.empty((M, *a.shape[1:]), dtype=a.dtype) for name, a in rows.items()}
-        for name, a in rows.items():
-            stored[name][stale] = a[: len(stale)]
+        # the cells' units in candidate order, then the parents' (the first round: every coded cell's is new)
+        if rounds:
+            for name, a in rows.items():
+                stored[name][stale] = a[: len(stale)]
+            units = {name: np.concatenate([stored[name][changed], a[len(stale) :]]) for name, a in rows.items()}
+        else:
+            units = dict(rows)
         stored_code[stale] = codes[stale]
-        # the cells' units in candidate order, then the parents'
-        units = {name: np.concatenate([stored[name][changed], a[len(stale) :]]) for name, a in rows.items()}
         entry, perm, rv, bad = (units.pop(name) for name in _CLASSIFIED)
         if np.any(rv <= 0):
             c0 = int(np.argmax(rv <= 0))
@@ -404,6 +408,10 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
                            f"{float(rv[c0]):.3g}); the structure is unchanged")  # fmt: skip
         if not bad.any():
             break
+        if not rounds:  # a second round: the first's units are kept, by candidate
+            stored = {name: np.empty((M, *a.shape[1:]), dtype=a.dtype) for name, a in rows.items()}
+            for name, a in rows.items():
+                stored[name][stale] = a[: len(stale)]
         rounds += 1
         if rounds > _ROUNDS:
             raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
@@ -558,18 +566,23 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
 
 
 class _OnEdges:
-    """Values on a few edges (``edges`` ascending, ``values`` theirs), ``fill`` on every other: indexed like an
-    (E,) array (a gather at any shape of edge ids), without one."""
+    """Values on a cut's hit edges, ``fill`` on every other: indexed like an (E,) array (a gather at any shape
+    of edge ids) without one filled per round. Made once per cut with the hits' slots (``slots``: (E,)
+    int32, 1 + the hit's index, 0 elsewhere: zeroed pages are cheap, written only at the hits); each round
+    takes its values (:meth:`at`)."""
 
-    def __init__(self, edges: np.ndarray, values: np.ndarray, fill: float):
-        self.edges, self.values, self.fill = np.asarray(edges), np.asarray(values), fill
+    def __init__(self, edges: np.ndarray, count: int, fill: float):
+        self.slots = np.zeros(count, dtype=np.int32)
+        self.slots[edges] = np.arange(1, len(edges) + 1, dtype=np.int32)
+        self.values, self.fill = np.zeros(0), fill
+
+    def at(self, values: np.ndarray) -> _OnEdges:
+        """This map with the hits' ``values`` ((hits,), in the order given)."""
+        self.values = np.append(np.asarray(values, dtype=np.float64), self.fill)  # (slot 0: the fill)
+        return self
 
     def __getitem__(self, index) -> np.ndarray:
-        index = np.asarray(index)
-        if not len(self.edges):
-            return np.full(index.shape, self.fill)
-        i = np.minimum(np.searchsorted(self.edges, index), len(self.edges) - 1)
-        return np.where(self.edges[i] == index, self.values[i], self.fill)
+        return self.values[self.slots[np.asarray(index)] - 1]
 
 
 class _ParentState:
@@ -665,17 +678,20 @@ def _triple_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
     return (t[:, 0] * n + t[:, 1]) * n + t[:, 2]
 
 
-def _cell_units(cells, codes, cell_nodes, cell_edges, edge_nodes, split_t) -> dict:
-    """The cells this cut changes as units (:func:`_parent_units`): their rows, given the cells' codes."""
+def _cell_units(cells, codes, nodes, edges, edge_nodes, split_t) -> dict:
+    """The cells this cut changes as units (:func:`_parent_units`), given their codes, nodes and edges."""
     n = len(cells)
-    cn = cell_nodes[cells].astype(np.int64)
-    ce = cell_edges[cells].astype(np.int64)
+    cn, ce = nodes.astype(np.int64), edges.astype(np.int64)
     ecode = (codes & 63).astype(np.int64)
     bits = (ecode[:, None] >> np.arange(6)) & 1
     new_edges = np.where(bits == 1, ce, -1)
-    forward = edge_nodes[ce, 0] == cn[:, TET_EDGES[:, 0]]
-    st = split_t[ce]
-    t = np.where(bits == 1, np.where(forward, st, 1.0 - st), -1.0)
+    # the split parameter from the cell's first corner of each cut edge (the others' stay -1)
+    t = np.full(ce.shape, -1.0)
+    cut_at = bits == 1
+    e_cut = ce[cut_at]
+    st = split_t[e_cut]
+    forward = edge_nodes[e_cut, 0] == cn[:, TET_EDGES[:, 0]][cut_at]
+    t[cut_at] = np.where(forward, st, 1.0 - st)
     return {
         "corners": cn, "edge_code": ecode, "node_code": (codes >> 6).astype(np.int64), "new_edges": new_edges,
         "old_split": np.full((n, 6, 2), -1, dtype=np.int64), "t": t, "parent": np.full(n, -1, dtype=np.int64),
