@@ -152,6 +152,11 @@ def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.nd
         )
 
 
+def _ascending(ids: np.ndarray) -> np.ndarray:
+    """``np.unique(ids)``, without its sort where ``ids`` ascend strictly already (a cut's: removed, then added)."""
+    return ids if ids.size < 2 or bool((ids[1:] > ids[:-1]).all()) else np.unique(ids)
+
+
 #: the most list entries one thread moves in one piece when the incidence is updated
 _RUN = 1 << 14
 
@@ -244,7 +249,7 @@ class Elements:
             if ids.ndim != 1 or (ids.size and not np.issubdtype(ids.dtype, np.integer)):
                 raise SimulationError(f"rebuild: tet_ids must be a 1-D integer array, got {tet_ids!r}")
             ids = ids.astype(np.int64)
-        new = np.unique(ids[ids >= T])
+        new = _ascending(ids[ids >= T])
         if ids.size and ids.min() < 0:
             raise SimulationError(f"rebuild: tet id {int(ids.min())} is negative")
         if new.size and not np.array_equal(new, np.arange(T, T + new.size)):
@@ -299,8 +304,11 @@ class Elements:
         check_tets(rest_h, tets_ids, alive_ids, np.arange(len(ids)), self.threads, names=ids)
         touched = None
         if tet_ids is not None:  # the nodes whose incidence changed: the changed tets' corners, old and new
-            touched = np.unique(np.concatenate([self.tets_host[old].ravel(), tets_ids.ravel(),
-                                                np.arange(self.node_count, len(rest_h))]))  # fmt: skip
+            mark = np.zeros(len(rest_h), dtype=bool)  # (marks, not a sort of every corner)
+            mark[self.tets_host[old].ravel()] = True
+            mark[tets_ids.ravel()] = True
+            mark[self.node_count :] = True
+            touched = np.flatnonzero(mark)
         # commit: the per-tet host arrays grow in kept buffers (room for later cuts' tets) and take the rows
         self.rest_host = rest_h
         for name, value, fill in (("tets_host", tets_ids, 0), ("alive_host", alive_ids, True),
@@ -365,10 +373,10 @@ class Elements:
         old_n = len(self._offsets_host) - 1
         changed = np.zeros(T, dtype=np.uint8)
         changed[ids] = 1
-        live = np.unique(ids[self.alive_host[ids]]).astype(np.int64)
+        live = _ascending(ids[self.alive_host[ids]]).astype(np.int64)
         nodes = self.tets_host[live].ravel()
         cols = (4 * live[:, None] + np.arange(4)).ravel()
-        order = np.lexsort((cols, nodes))
+        order = np.argsort(nodes, kind="stable")  # (the columns ascend already: by node, then column)
         nodes, cols = nodes[order], cols[order].astype(np.int32)
         # every changed tet's corner is a touched node: the nodes' runs follow each other in touched order
         add_start = np.append(np.searchsorted(nodes, touched), len(nodes)).astype(np.int32)

@@ -198,7 +198,9 @@ class ElementState:
                 if a.ptr != b.ptr:  # (a state rebuilt in its old buffers has them in place)
                     wp.copy(a, b, count=per * count)
             ids = np.asarray(ids, dtype=np.int64).ravel()
-            ids = np.union1d(ids[(ids >= 0) & (ids < count)], np.arange(count, e.tet_count)).astype(np.int32)
+            # (the old tets listed, ascending, then every new one: np.union1d's result without its sort of both)
+            ids = np.concatenate([np.unique(ids[(ids >= 0) & (ids < count)]), np.arange(count, e.tet_count)])
+            ids = ids.astype(np.int32)
             if ids.size:
                 split_launch(k.rotate_elements_kernel, len(ids), [wp.array(ids, dtype=wp.int32, device=dev),
                              *inputs], out, dev, threads, TET_GRAIN)  # fmt: skip
