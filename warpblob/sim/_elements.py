@@ -181,8 +181,9 @@ class Elements:
     are zero on the device, so they add mass but no elastic force or
     stiffness (their nodes move as rigid bodies, :mod:`warpblob.sim._rigid`).
     ``touched_nodes``: (K,) int32 the nodes whose incidence the last
-    :meth:`rebuild` changed (the changed tets' corners before and after it,
-    and every new node), or None after a rebuild of every tet.
+    :meth:`rebuild` changed (the corners of the changed tets that were live
+    before it or are live after it, and every new node), or None after a
+    rebuild of every tet.
     """
 
     def __init__(self, rest, tets, alive, young, poisson, density, *, device, threads=None):
@@ -225,9 +226,13 @@ class Elements:
         their new node indices, live flags and materials; ids at or past
         :attr:`tet_count` (consecutive from it) append tets, and a longer
         ``rest`` appends nodes. ``Dm^-1`` and volumes of ``tet_ids`` are
-        recomputed by a kernel, the incidence of every node by a sort, the
-        masses of the nodes those tets touch by a gather (all cheap next to a
-        step).
+        recomputed by a kernel, the incidence lists of the nodes those tets
+        touch merged anew (every other list moved as it was; all of them
+        sorted afresh when ``tet_ids`` is None), their masses by a gather
+        (all cheap next to a step). The listed rows are checked before
+        anything changes; the per-tet host arrays then grow in place, in
+        kept buffers with room (so an array read from this object before a
+        rebuild may see its changed rows).
 
         Args:
             tet_ids: (K,) tet slots to rebuild, or None for all.
@@ -303,10 +308,10 @@ class Elements:
         rest_h = self.rest_host if rest is None else np.ascontiguousarray(rest, dtype=np.float32)
         check_tets(rest_h, tets_ids, alive_ids, np.arange(len(ids)), self.threads, names=ids)
         touched = None
-        if tet_ids is not None:  # the nodes whose incidence changed: the changed tets' corners, old and new
+        if tet_ids is not None:  # the nodes whose incidence changed: the changed live tets' corners, old and new
             mark = np.zeros(len(rest_h), dtype=bool)  # (marks, not a sort of every corner)
-            mark[self.tets_host[old].ravel()] = True
-            mark[tets_ids.ravel()] = True
+            mark[self.tets_host[old][self.alive_host[old]].ravel()] = True
+            mark[tets_ids[alive_ids].ravel()] = True
             mark[self.node_count :] = True
             touched = np.flatnonzero(mark)
         # commit: the per-tet host arrays grow in kept buffers (room for later cuts' tets) and take the rows
