@@ -374,6 +374,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     # fixed within a cut): a round re-classifies the cells whose code changed, and the progressive parents
     M = len(candidates)
     own_c = state.record_of(candidates) < 0 if state.children.size else np.ones(M, dtype=bool)
+    code_ok = _table_arrays(tables, dev)["code_ok"]
     stored_code = np.full(M, -1, dtype=np.int64)
     stored: dict = {}
     edge_cut = np.zeros(E, dtype=np.uint8)  # (written at the hit edges only, each round)
@@ -419,12 +420,8 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
                            "unchanged")  # fmt: skip
         # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not
         # be cut, drops the hit)
-        cand = units["new_edges"][bad]  # (b, 6) global edges this stroke cuts, -1 else
-        st_ = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
-        dist = np.where(cand >= 0, np.minimum(st_, 1.0 - st_), np.inf)
-        j = np.argmin(dist, axis=1)
-        has = np.isfinite(dist[np.arange(len(j)), j])
-            # a record left invalid by a cut node at a corner, with no new edge to snap: keep its corners uncut
+        has, e_sel, target = _nearest_ends(units["new_edges"][bad], split_t, edge_nodes_np)
+        # a record left invalid by a cut node at a corner, with no new edge to snap: keep its corners uncut
         stuck = (units["parent"][bad] >= 0) & ~has
         if stuck.any():
             corners = units["corners"][bad][stuck].ravel()
@@ -435,12 +432,34 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         if not has.any() and not stuck.any():
             raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
                            "structure is unchanged")  # fmt: skip
-        e_sel = cand[np.arange(len(j)), j][has]
-        t_sel = split_t[e_sel]
-        target = np.where(t_sel < 0.5, edge_nodes_np[e_sel, 0], edge_nodes_np[e_sel, 1])
         blocked = state.is_protected[target]
         node_cut[target[~blocked]] = 1
         dropped |= np.isin(hits, e_sel[blocked])
+        # look-ahead on the codes alone: the cells round the nodes this changed whose codes the tables lack
+        # now (mostly a progressive code with a cut node: the next tet along the blade's front, which the
+        # next round would snap the same way) snap by the same rule until none is left, so that the next
+        # round (which also checks every sub-tet's shape) settles more than one tet of the front
+        moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel()])
+        for _ in range(_ROUNDS):
+            mark = np.zeros(N, dtype=bool)
+            mark[moved] = True
+            near_moved = np.flatnonzero(own_c & mark[rows_nodes].any(axis=1))
+            if not near_moved.size:
+                break
+            keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
+            edge_cut[hits] = keep
+            cut_bits = edge_cut[rows_edges[near_moved]] != 0  # (k, 6)
+            node_bits = node_cut[rows_nodes[near_moved]] != 0  # (k, 4)
+            lacking = ~code_ok[cut_bits @ (1 << np.arange(6)), node_bits @ (1 << np.arange(4))]
+            lacking &= cut_bits.any(axis=1)  # (a code of cut nodes only is left to the round)
+            if not lacking.any():
+                break
+            cand = np.where(cut_bits[lacking], rows_edges[near_moved[lacking]], -1)
+            _, e_sel, target = _nearest_ends(cand, hit_slots.at(np.where(keep, t_hit, -1.0)), edge_nodes_np)
+            blocked = state.is_protected[target]
+            node_cut[target[~blocked]] = 1
+            dropped |= np.isin(hits, e_sel[blocked])
+            moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel()])
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
@@ -538,6 +557,9 @@ def _table_arrays(tables, dev) -> dict:
         }  # fmt: skip
         arrays = {name: wp.array(v, dtype=wp.int32, device=dev) for name, v in flat.items()}
         arrays["kind_np"] = kind
+        # per (edge code, node code) in a tet's own corner order: the tables split it (the same for every
+        # order of the corners; the progressive code with a cut node counts as lacking)
+        arrays["code_ok"] = (tables.entry >= 0) & (kind[np.maximum(tables.entry, 0)] != _KIND_NAMES.index("Xp"))
         _table_cache[key] = arrays
     return _table_cache[key]
 
@@ -563,6 +585,19 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
     # one launch below 2048 units (a 10K-tet cut): waking the pool costs more than the second thread gives
     launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=1024)
     return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
+
+
+def _nearest_ends(cand: np.ndarray, split_t, edge_nodes: np.ndarray) -> tuple:
+    """The snap rule. Per row of ``cand`` ((b, 6) edges this cut cuts, -1 else; ``split_t`` their split
+    parameters): whether it has one, and of the rows that do, the edge whose split point lies nearest an
+    end and that end: ``(has (b,) bool, edges (h,), ends (h,))``."""
+    st = np.where(cand >= 0, split_t[np.maximum(cand, 0)], -1.0)
+    dist = np.where(cand >= 0, np.minimum(st, 1.0 - st), np.inf)
+    j = np.argmin(dist, axis=1) if len(cand) else np.zeros(0, dtype=np.int64)
+    has = np.isfinite(dist[np.arange(len(j)), j])
+    edges = cand[np.arange(len(j)), j][has]
+    t = split_t[edges]
+    return has, edges, np.where(t < 0.5, edge_nodes[edges, 0], edge_nodes[edges, 1])
 
 
 class _OnEdges:
