@@ -23,6 +23,9 @@ One call of :func:`cut`:
    permutation and every sub-tet's volume) are reduced: the cut edge whose hit is nearest an end snaps
    to that end, and the codes are recomputed (a few rounds at most; each
    round removes cut edges, and a code without cut edges is always valid).
+   Between rounds, the cells round the nodes a round changed whose codes
+   alone the tables lack snap by the same rule at once (a look-ahead: the
+   snap at a blade's front most often makes the next front tet such a code).
 3. **subdivision** by the generated tables (:mod:`warpblob.cut._tables`):
    every cut edge gets two co-located nodes, one joined to each end (SPEC
    section 4); progressive tets get their crack-front points (cell centre,
