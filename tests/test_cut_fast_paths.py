@@ -453,3 +453,46 @@ def test_rest_grid_of_far_apart_pieces_stays_small(monkeypatch):
         results.append((r.tets_added, np.asarray(s.cell_nodes).copy()))
     assert results[0][0] == results[1][0] > 0
     np.testing.assert_array_equal(results[0][1], results[1][1])
+
+
+def test_record_look_ahead_lacks_what_the_kernel_lacks(device):
+    """The classification's look-ahead on the progressive records (``_records_lacking``: codes looked up in
+    numpy) flags exactly the records whose codes the classification kernel finds no table entry for (or the
+    progressive entry with a cut node), over random cut edges and cut corners of the records."""
+    from warpblob.cut._cut import _KIND_NAMES, _ParentState, _classify_units, _parent_units, _records_lacking, \
+        _table_arrays, cut_tables  # fmt: skip
+
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5)))
+    ys = np.linspace(-0.5, 0.43, 12)  # the blade stops inside the box: progressive records
+    a = np.column_stack([np.full_like(ys, 0.5), ys, np.full_like(ys, -0.5)])
+    cut(s, SweepSurface.from_blade(a, a + (0, 0, 2.0)), device=device)
+    edge_nodes = np.asarray(s.edge_nodes)
+    state = _ParentState(s, edge_nodes)
+    assert state.active.size > 3
+    corners, ge, _ = state.active_rows()
+    tables = cut_tables()
+    kind = _table_arrays(tables, device)["kind_np"]
+    rng = np.random.default_rng(5)
+    lacking_seen = 0
+    for _ in range(40):
+        edge_cut = np.zeros(len(edge_nodes), dtype=np.uint8)
+        uncut = ge[ge >= 0]
+        edge_cut[uncut[rng.random(len(uncut)) < 0.3]] = 1
+        node_cut = np.zeros(len(s.node_rest), dtype=np.uint8)
+        ends = np.unique(corners)
+        node_cut[ends[rng.random(len(ends)) < 0.15]] = 1
+        split_t = rng.uniform(0.25, 0.75, len(edge_nodes))
+        rows, stuck = _records_lacking(state, edge_cut, node_cut, np.ones(len(node_cut), bool),
+                                       _table_arrays(tables, device)["code_ok"])  # fmt: skip
+        units = _parent_units(state, edge_nodes, edge_cut, split_t, node_cut)
+        if units is None:
+            assert len(rows) == 0 and len(stuck) == 0
+            continue
+        entry = _classify_units(tables, units, np.asarray(s.node_rest), device, None)[0]
+        lacks = (entry < 0) | (kind[np.maximum(entry, 0)] == _KIND_NAMES.index("Xp"))
+        has = (units["new_edges"] >= 0).any(axis=1)
+        np.testing.assert_array_equal(rows, units["new_edges"][lacks & has])
+        cut_corners = units["corners"][lacks & ~has]
+        np.testing.assert_array_equal(stuck, np.unique(cut_corners[node_cut[cut_corners] != 0]))
+        lacking_seen += int(lacks.sum())
+    assert lacking_seen > 0  # the trials reached codes the tables lack

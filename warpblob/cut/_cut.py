@@ -87,6 +87,8 @@ __all__ = ["CutResult", "cut"]
 STAGES = ("intersection", "classification", "subdivision", "topology", "gc")
 #: reduction rounds before a cut gives up (each removes at least one cut edge per bad tet)
 _ROUNDS = 64
+#: bit weights of a tet's six edges and four corners (codes from (n, 6) and (n, 4) flags)
+_BITS6, _BITS4 = 1 << np.arange(6), 1 << np.arange(4)
 #: sweeps of at most this many triangles are intersected without a BVH (each triangle's box tested in turn)
 _FEW_TRIANGLES = 16
 #: items per piece of a range-split launch of a kernel doing a few loads and stores per item (a piece is a
@@ -447,22 +449,28 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
             mark = np.zeros(N, dtype=bool)
             mark[moved] = True
             near_moved = np.flatnonzero(own_c & mark[rows_nodes].any(axis=1))
-            if not near_moved.size:
-                break
             keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
             edge_cut[hits] = keep
             cut_bits = edge_cut[rows_edges[near_moved]] != 0  # (k, 6)
             node_bits = node_cut[rows_nodes[near_moved]] != 0  # (k, 4)
-            lacking = ~code_ok[cut_bits @ (1 << np.arange(6)), node_bits @ (1 << np.arange(4))]
+            lacking = ~code_ok[cut_bits @ _BITS6, node_bits @ _BITS4]
             lacking &= cut_bits.any(axis=1)  # (a code of cut nodes only is left to the round)
-            if not lacking.any():
-                break
             cand = np.where(cut_bits[lacking], rows_edges[near_moved[lacking]], -1)
+            # the records round those nodes too, on their accumulated codes, by the round's rules
+            rec_cand, stuck_corners = _records_lacking(state, edge_cut, node_cut, mark, code_ok)
+            cand = np.concatenate([cand, rec_cand])
+            if not len(cand) and not stuck_corners.size:
+                break
+            if stuck_corners.size:
+                node_cut[stuck_corners] = 0
+                state.is_protected[stuck_corners] = True
+                state.protected = np.union1d(state.protected, stuck_corners)
             _, e_sel, target = _nearest_ends(cand, hit_slots.at(np.where(keep, t_hit, -1.0)), edge_nodes_np)
             blocked = state.is_protected[target]
             node_cut[target[~blocked]] = 1
-            dropped |= np.isin(hits, e_sel[blocked])
-            moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel()])
+            if blocked.any():
+                dropped |= np.isin(hits, e_sel[blocked])
+            moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel(), stuck_corners])
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
@@ -643,6 +651,7 @@ class _ParentState:
         self.protected = np.zeros(0, dtype=np.int64)
         self.edges = np.full((pr.count, 6), -1, dtype=np.int64)
         self.children = self.active = np.zeros(0, dtype=np.int64)
+        self._rows = None
         self._live = pr["alive"].copy() if pr.count else np.zeros(0, dtype=bool)
         if self._live.any():
             # the pieces of live records (a piece of an ended record is an ordinary cell), from the structure's
@@ -682,6 +691,15 @@ class _ParentState:
         order = np.argsort(self.front_keys)
         self.front_keys, self.front_ids = self.front_keys[order], self.front_ids[order]
 
+    def active_rows(self) -> tuple:
+        """The live records with pieces: corners (a, 4) int64, global edges (a, 6) (-1 where cut before) and
+        accumulated edge codes (a,) int64, read once per cut."""
+        if self._rows is None:
+            pr = self.structure._parents
+            self._rows = (pr["corners"][self.active].astype(np.int64), self.edges[self.active],
+                          pr["code"][self.active].astype(np.int64))  # fmt: skip
+        return self._rows
+
     def record_of(self, cells: np.ndarray) -> np.ndarray:
         """The live record each of ``cells`` is a piece of, -1 none."""
         cp = np.asarray(self.structure.cell_parent)[cells].astype(np.int64)
@@ -708,6 +726,24 @@ class _ParentState:
             ids = pr.extend(int(fresh.sum()), **{name: rec[name][fresh] for name in
                                                  ("corners", "split", "t", "code", "faces", "centre")})  # fmt: skip
             assert np.array_equal(ids, plan["new_record_ids"])
+
+
+def _records_lacking(state, edge_cut, node_cut, mark, code_ok) -> tuple:
+    """The look-ahead on the live records with a corner in ``mark`` whose accumulated codes the tables lack
+    (the codes :func:`_parent_units` gives; the round would treat them by the same rules): the rows of those
+    with edges cut now, for :func:`_nearest_ends` (``(r, 6)``, those edges, -1 else), and the cut corners of
+    those with none, which stay uncut (int64)."""
+    corners, ge, code = state.active_rows()
+    near = mark[corners].any(axis=1)
+    if not near.any():
+        return np.zeros((0, 6), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    ge, corners = ge[near], corners[near]
+    cut_now = (ge >= 0) & (edge_cut[np.maximum(ge, 0)] == 1)  # (r, 6)
+    corner_cut = node_cut[corners] != 0  # (r, 4)
+    has = cut_now.any(axis=1)
+    lacking = (has | corner_cut.any(axis=1)) & ~code_ok[code[near] | cut_now @ _BITS6, corner_cut @ _BITS4]
+    stuck = lacking & ~has
+    return np.where(cut_now[lacking & has], ge[lacking & has], -1), np.unique(corners[stuck][corner_cut[stuck]])
 
 
 def _triple_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
@@ -748,24 +784,23 @@ def _parent_units(state, edge_nodes, edge_cut, split_t, node_cut) -> dict | None
     if not state.active.size:
         return None
     pr = state.structure._parents
-    act = state.active
-    ge = state.edges[act]  # (a, 6)
+    corners, ge, code = state.active_rows()
     cut_now = (ge >= 0) & (edge_cut[np.maximum(ge, 0)] == 1)
-    corner_cut = node_cut[pr["corners"][act]] != 0  # (a, 4)
+    corner_cut = node_cut[corners] != 0  # (a, 4)
     moved = cut_now.any(axis=1) | corner_cut.any(axis=1)
     if not moved.any():
         return None
-    act, ge, cut_now, corner_cut = act[moved], ge[moved], cut_now[moved], corner_cut[moved]
-    corners = pr["corners"][act].astype(np.int64)
+    act, ge, cut_now, corner_cut = state.active[moved], ge[moved], cut_now[moved], corner_cut[moved]
+    corners = corners[moved]
     old_split = pr["split"][act].astype(np.int64)
     old_t = pr["t"][act].astype(np.float64)
-    code = pr["code"][act].astype(np.int64) | (cut_now * (1 << np.arange(6))).sum(axis=1)
+    code = code[moved] | cut_now @ _BITS6
     new_e = np.where(cut_now, ge, -1)
     forward = edge_nodes[np.maximum(ge, 0), 0] == corners[:, TET_EDGES[:, 0]]
     st_ = split_t[np.maximum(ge, 0)]
     t_par = np.where(cut_now, np.where(forward, st_, 1.0 - st_), old_t)
     return {
-        "corners": corners, "edge_code": code, "node_code": (corner_cut * (1 << np.arange(4))).sum(axis=1),
+        "corners": corners, "edge_code": code, "node_code": corner_cut @ _BITS4,
         "new_edges": new_e,
         "old_split": old_split, "t": t_par, "parent": act.astype(np.int64), "cell": np.full(len(act), -1, np.int64),
     }  # fmt: skip
