@@ -8,6 +8,14 @@ stage) are kept beside it as the breakdown of the fastest call, never in its
 place. Timings taken on a busy machine are slow by an unknown factor, so each
 run records the load average (``os.getloadavg``) before and after, prints it,
 and writes it into its JSON.
+
+The shared machines also change speed from day to day with no load to show
+for it (the same code's interactive steps have moved by 2-3x, a C++ peer's by
+1.2-1.4x). So each run also times three fixed probes before and after
+(:func:`speed_probe`: a pure-Python loop, a memory-bound numpy pass and one
+Warp CPU launch, the three costs an interactive step is made of) and writes
+them beside the load: an absolute figure from one day is compared with
+another day's through them, and a ratio to a peer only within one run.
 """
 
 from __future__ import annotations
@@ -18,6 +26,9 @@ import json
 import os
 import platform
 import time
+
+import numpy as np
+import warp as wp
 
 RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")
 
@@ -57,9 +68,48 @@ def load_average() -> list[float]:
     return [round(v, 2) for v in os.getloadavg()]
 
 
-def machine() -> dict:
-    import warp as wp
+def speed_probe() -> dict:
+    """The machine's speed now: best of 9 of a pure-Python loop (ms, 10^6 integer additions), a memory-bound
+    numpy pass (ms, ``y = 2 x + 1`` over 4 * 10^6 float64: 96 MB moved) and one launch of an empty Warp kernel
+    on the CPU (us, what every kernel launch costs on top of its work). Fixed work, so across runs a larger
+    figure is a slower machine.
 
+    Example:
+        >>> sorted(speed_probe())
+        ['numpy_pass_ms', 'python_loop_ms', 'warp_launch_us']
+    """
+    def best(fn, repeat=9):
+        fn()
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return min(times)
+
+    def loop():
+        total = 0
+        for i in range(1_000_000):
+            total += i
+        return total
+
+    x = np.ones(4_000_000)
+    cpu = wp.get_device("cpu")
+    a = wp.zeros(1, dtype=float, device=cpu)
+    return {
+        "python_loop_ms": round(1e3 * best(loop), 2),
+        "numpy_pass_ms": round(1e3 * best(lambda: 2.0 * x + 1.0), 2),
+        "warp_launch_us": round(1e6 * best(lambda: [wp.launch(_noop_kernel, dim=1, inputs=[a], device=cpu)
+                                                     for _ in range(100)]) / 100, 1),  # fmt: skip
+    }
+
+
+@wp.kernel(enable_backward=False)
+def _noop_kernel(a: wp.array(dtype=float)):
+    a[0] = a[0]
+
+
+def machine() -> dict:
     return {
         "python": platform.python_version(),
         "warp": wp.__version__,
@@ -100,11 +150,15 @@ class Run:
         print(f"{title}{' (quick)' if args.quick else ''}")
         print(f"timing: {TIMING} = {args.repeat}")
         _print_load("before", self.load_before)
+        self.speed_before = speed_probe()
+        _print_speed("before", self.speed_before)
 
     def finish(self, payload: dict) -> str | None:
         """Print the load after the run and write ``payload`` with the run's facts; the path written, if any."""
         load_after = load_average()
         _print_load("after", load_after)
+        speed_after = speed_probe()
+        _print_speed("after", speed_after)
         path = self.args.json or (None if self.args.quick else os.path.join(RESULTS, f"bench_{self.name}.json"))
         if path is None:
             print("quick run: no JSON written (pass --json PATH to write one)")
@@ -118,6 +172,7 @@ class Run:
             "run_seconds": time.perf_counter() - self._t0,
             "load_average_before": self.load_before,
             "load_average_after": load_after,
+            "speed_probe": {"before": self.speed_before, "after": speed_after},
             "machine": machine(),
             **payload,
         }
@@ -130,6 +185,11 @@ def _print_load(when: str, load: list[float]) -> None:
     note = f"  (busy: over {BUSY_LOAD}, other work competes for the cores)" if load[0] > BUSY_LOAD else ""
     text = " ".join(f"{v:.2f}" for v in load)
     print(f"load average {when} (1, 5, 15 min): {text} on {os.cpu_count()} cores{note}", flush=True)
+
+
+def _print_speed(when: str, speed: dict) -> None:
+    text = ", ".join(f"{k} {v}" for k, v in speed.items())
+    print(f"machine speed {when} (fixed work, smaller is faster): {text}", flush=True)
 
 
 def table(rows: list[dict], columns: list[tuple[str, str, str]]) -> str:
