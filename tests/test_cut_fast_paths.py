@@ -459,8 +459,15 @@ def test_record_look_ahead_lacks_what_the_kernel_lacks(device):
     """The classification's look-ahead on the progressive records (``_records_lacking``: codes looked up in
     numpy) flags exactly the records whose codes the classification kernel finds no table entry for (or the
     progressive entry with a cut node), over random cut edges and cut corners of the records."""
-    from warpblob.cut._cut import _KIND_NAMES, _ParentState, _classify_units, _parent_units, _records_lacking, \
-        _table_arrays, cut_tables  # fmt: skip
+    from warpblob.cut._cut import (
+        _KIND_NAMES,
+        _classify_units,
+        _parent_units,
+        _ParentState,
+        _records_lacking,
+        _table_arrays,
+        cut_tables,
+    )
 
     s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5)))
     ys = np.linspace(-0.5, 0.43, 12)  # the blade stops inside the box: progressive records
