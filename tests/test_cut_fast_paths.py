@@ -455,51 +455,91 @@ def test_rest_grid_of_far_apart_pieces_stays_small(monkeypatch):
     np.testing.assert_array_equal(results[0][1], results[1][1])
 
 
-def test_record_look_ahead_lacks_what_the_kernel_lacks(device):
-    """The classification's look-ahead on the progressive records (``_records_lacking``: codes looked up in
-    numpy) flags exactly the records whose codes the classification kernel finds no table entry for (or the
-    progressive entry with a cut node), over random cut edges and cut corners of the records."""
-    from warpblob.cut._cut import (
-        _KIND_NAMES,
-        _classify_units,
-        _parent_units,
-        _ParentState,
-        _records_lacking,
-        _table_arrays,
-        cut_tables,
-    )
+def _look_ahead_reference(state, rows_nodes, rows_edges, own, code_ok, hits, t_hit, edge_nodes, node_cut, dropped,
+                          moved, rounds=64):  # fmt: skip
+    """The look-ahead in numpy, pass by pass (the rules of :class:`~warpblob.cut._cut._LookAhead`): returns
+    node_cut, dropped, the locked nodes and the hits kept at the last pass's start."""
+    node_cut, dropped, locked = node_cut.copy(), dropped.copy(), state.is_protected.copy()
+    corners, ge, code = state.active_rows()
+    slot = {int(e): i for i, e in enumerate(hits)}
+    bits6, bits4 = 1 << np.arange(6), 1 << np.arange(4)
+    keep = np.zeros(len(hits), dtype=bool)
+    for _ in range(rounds):
+        mark = np.zeros(len(node_cut), dtype=bool)
+        mark[moved] = True
+        keep = (node_cut[edge_nodes[hits, 0]] == 0) & (node_cut[edge_nodes[hits, 1]] == 0) & ~dropped
+        edge_cut = np.zeros(len(edge_nodes), dtype=bool)
+        edge_cut[hits] = keep
+        rows = []
+        for i in np.flatnonzero(own & mark[rows_nodes].any(axis=1)):
+            cut = edge_cut[rows_edges[i]]
+            if cut.any() and not code_ok[cut @ bits6, (node_cut[rows_nodes[i]] != 0) @ bits4]:
+                rows.append(rows_edges[i][cut])
+        stuck = []
+        for r in np.flatnonzero(mark[corners].any(axis=1) if len(corners) else []):
+            cut = (ge[r] >= 0) & edge_cut[np.maximum(ge[r], 0)]
+            corner_cut = node_cut[corners[r]] != 0
+            if (cut.any() or corner_cut.any()) and not code_ok[code[r] | cut @ bits6, corner_cut @ bits4]:
+                if cut.any():
+                    rows.append(ge[r][cut])
+                else:
+                    stuck.extend(corners[r][corner_cut].tolist())
+        if not rows and not stuck:
+            break
+        node_cut[stuck] = 0
+        locked[stuck] = True
+        moved = list(stuck)
+        for edges in rows:
+            t = t_hit[[slot[int(e)] for e in edges]]
+            j = int(np.argmin(np.minimum(t, 1.0 - t)))
+            target = edge_nodes[edges[j], 0 if t[j] < 0.5 else 1]
+            if locked[target]:
+                dropped[slot[int(edges[j])]] = True
+                moved.extend(edge_nodes[edges[j]].tolist())
+            else:
+                node_cut[target] = 1
+                moved.append(int(target))
+    return node_cut, dropped, locked, keep
+
+
+def test_look_ahead_follows_the_snap_rule(device):
+    """The classification's look-ahead kernel (cells on their codes, progressive records on their accumulated
+    codes) leaves the cut nodes, dropped hits, locked nodes and kept hits of a numpy reference of its rules,
+    from random cut states of a mesh with progressive records."""
+    from warpblob.cut._cut import _LookAhead, _ParentState, _table_arrays, cut_tables
 
     s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5)))
     ys = np.linspace(-0.5, 0.43, 12)  # the blade stops inside the box: progressive records
     a = np.column_stack([np.full_like(ys, 0.5), ys, np.full_like(ys, -0.5)])
     cut(s, SweepSurface.from_blade(a, a + (0, 0, 2.0)), device=device)
     edge_nodes = np.asarray(s.edge_nodes)
-    state = _ParentState(s, edge_nodes)
-    assert state.active.size > 3
-    corners, ge, _ = state.active_rows()
-    tables = cut_tables()
-    kind = _table_arrays(tables, device)["kind_np"]
+    cells = np.flatnonzero(np.asarray(s.cell_alive))
+    rows_nodes, rows_edges = np.asarray(s.cell_nodes)[cells], np.asarray(s.cell_edges)[cells]
+    code_ok = _table_arrays(cut_tables(), device)["code_ok"]
     rng = np.random.default_rng(5)
-    lacking_seen = 0
-    for _ in range(40):
+    snapped = 0
+    for trial in range(30):
+        state = _ParentState(s, edge_nodes)
+        assert state.active.size > 3
+        own = state.record_of(cells) < 0
+        hits = np.unique(rng.choice(len(edge_nodes), size=len(edge_nodes) // 3, replace=False)).astype(np.int32)
+        t_hit = rng.choice([0.25, 0.3, 0.7, 0.75], len(hits))  # (ties between ends: the first edge wins)
+        node_cut = (rng.random(len(s.node_rest)) < 0.05).astype(np.uint8)
+        node_cut[state.protected] = 0
+        dropped = rng.random(len(hits)) < 0.1
+        moved = rng.choice(len(s.node_rest), size=20, replace=False)
+        expected = _look_ahead_reference(state, rows_nodes, rows_edges, own, code_ok, hits, t_hit, edge_nodes,
+                                         node_cut, dropped, moved)  # fmt: skip
+        slots = np.zeros(len(edge_nodes), dtype=np.int32)
+        slots[hits] = np.arange(1, len(hits) + 1)
         edge_cut = np.zeros(len(edge_nodes), dtype=np.uint8)
-        uncut = ge[ge >= 0]
-        edge_cut[uncut[rng.random(len(uncut)) < 0.3]] = 1
-        node_cut = np.zeros(len(s.node_rest), dtype=np.uint8)
-        ends = np.unique(corners)
-        node_cut[ends[rng.random(len(ends)) < 0.15]] = 1
-        split_t = rng.uniform(0.25, 0.75, len(edge_nodes))
-        rows, stuck = _records_lacking(state, edge_cut, node_cut, np.ones(len(node_cut), bool),
-                                       _table_arrays(tables, device)["code_ok"])  # fmt: skip
-        units = _parent_units(state, edge_nodes, edge_cut, split_t, node_cut)
-        if units is None:
-            assert len(rows) == 0 and len(stuck) == 0
-            continue
-        entry = _classify_units(tables, units, np.asarray(s.node_rest), device, None)[0]
-        lacks = (entry < 0) | (kind[np.maximum(entry, 0)] == _KIND_NAMES.index("Xp"))
-        has = (units["new_edges"] >= 0).any(axis=1)
-        np.testing.assert_array_equal(rows, units["new_edges"][lacks & has])
-        cut_corners = units["corners"][lacks & ~has]
-        np.testing.assert_array_equal(stuck, np.unique(cut_corners[node_cut[cut_corners] != 0]))
-        lacking_seen += int(lacks.sum())
-    assert lacking_seen > 0  # the trials reached codes the tables lack
+        before = node_cut.copy()
+        _LookAhead(state, rows_nodes, rows_edges, own, code_ok, hits, t_hit, slots, edge_nodes, node_cut, edge_cut,
+                   dropped).run(moved)  # fmt: skip
+        np.testing.assert_array_equal(node_cut, expected[0])
+        np.testing.assert_array_equal(dropped, expected[1])
+        np.testing.assert_array_equal(state.is_protected, expected[2])
+        np.testing.assert_array_equal(state.protected, np.flatnonzero(expected[2]))
+        np.testing.assert_array_equal(edge_cut[hits] != 0, expected[3])
+        snapped += int((node_cut != before).sum())
+    assert snapped > 0  # the trials snapped and unlocked nodes

@@ -384,6 +384,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     stored: dict = {}
     edge_cut = np.zeros(E, dtype=np.uint8)  # (written at the hit edges only, each round)
     hit_slots = _OnEdges(hits, E, -1.0)
+    look = None  # (the look-ahead's arrays, wrapped when a round first needs it)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut[hits] = keep
@@ -445,32 +446,10 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         # next round would snap the same way) snap by the same rule until none is left, so that the next
         # round (which also checks every sub-tet's shape) settles more than one tet of the front
         moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel()])
-        for _ in range(_ROUNDS):
-            mark = np.zeros(N, dtype=bool)
-            mark[moved] = True
-            near_moved = np.flatnonzero(own_c & mark[rows_nodes].any(axis=1))
-            keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
-            edge_cut[hits] = keep
-            cut_bits = edge_cut[rows_edges[near_moved]] != 0  # (k, 6)
-            node_bits = node_cut[rows_nodes[near_moved]] != 0  # (k, 4)
-            lacking = ~code_ok[cut_bits @ _BITS6, node_bits @ _BITS4]
-            lacking &= cut_bits.any(axis=1)  # (a code of cut nodes only is left to the round)
-            cand = np.where(cut_bits[lacking], rows_edges[near_moved[lacking]], -1)
-            # the records round those nodes too, on their accumulated codes, by the round's rules
-            rec_cand, stuck_corners = _records_lacking(state, edge_cut, node_cut, mark, code_ok)
-            cand = np.concatenate([cand, rec_cand])
-            if not len(cand) and not stuck_corners.size:
-                break
-            if stuck_corners.size:
-                node_cut[stuck_corners] = 0
-                state.is_protected[stuck_corners] = True
-                state.protected = np.union1d(state.protected, stuck_corners)
-            _, e_sel, target = _nearest_ends(cand, hit_slots.at(np.where(keep, t_hit, -1.0)), edge_nodes_np)
-            blocked = state.is_protected[target]
-            node_cut[target[~blocked]] = 1
-            if blocked.any():
-                dropped |= np.isin(hits, e_sel[blocked])
-            moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel(), stuck_corners])
+        if look is None:
+            look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,
+                              edge_nodes_np, node_cut, edge_cut, dropped)  # fmt: skip
+        look.run(moved)
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())
@@ -728,22 +707,54 @@ class _ParentState:
             assert np.array_equal(ids, plan["new_record_ids"])
 
 
-def _records_lacking(state, edge_cut, node_cut, mark, code_ok) -> tuple:
-    """The look-ahead on the live records with a corner in ``mark`` whose accumulated codes the tables lack
-    (the codes :func:`_parent_units` gives; the round would treat them by the same rules): the rows of those
-    with edges cut now, for :func:`_nearest_ends` (``(r, 6)``, those edges, -1 else), and the cut corners of
-    those with none, which stay uncut (int64)."""
-    corners, ge, code = state.active_rows()
-    near = mark[corners].any(axis=1)
-    if not near.any():
-        return np.zeros((0, 6), dtype=np.int64), np.zeros(0, dtype=np.int64)
-    ge, corners = ge[near], corners[near]
-    cut_now = (ge >= 0) & (edge_cut[np.maximum(ge, 0)] == 1)  # (r, 6)
-    corner_cut = node_cut[corners] != 0  # (r, 4)
-    has = cut_now.any(axis=1)
-    lacking = (has | corner_cut.any(axis=1)) & ~code_ok[code[near] | cut_now @ _BITS6, corner_cut @ _BITS4]
-    stuck = lacking & ~has
-    return np.where(cut_now[lacking & has], ge[lacking & has], -1), np.unique(corners[stuck][corner_cut[stuck]])
+class _LookAhead:
+    """The classification's look-ahead between rounds (:func:`~warpblob.cut._kernels.look_ahead_kernel`, one
+    thread on the CPU device whatever the cut's: a sequential pass over the host's arrays, which it edits in
+    place): the tets round the nodes a round changed whose codes the tables lack snap by the snap rule, pass
+    after pass, the cells cut on their own (``own``) on their codes and the live progressive records on
+    their accumulated ones (the codes :func:`_parent_units` gives); a record with no edge cut now keeps its
+    cut corners uncut, as the round would do. The arrays that stay fixed through a cut are wrapped once."""
+
+    def __init__(self, state, rows_nodes, rows_edges, own, code_ok, hits, t_hit, hit_of, edge_nodes, node_cut,
+                 edge_cut, dropped):  # fmt: skip
+        cpu = wp.get_device("cpu")
+        corners, ge, code = state.active_rows()
+        self.state, self.node_cut = state, node_cut
+        M, A = len(rows_nodes), len(corners)
+        self.room = 2 * (M + A) + 4 * A
+        self.fixed = [
+            _shared(rows_nodes.astype(np.int32, copy=False), wp.vec4i, cpu),
+            _shared(rows_edges.astype(np.int32, copy=False), vec6i, cpu),
+            _shared(own.view(np.uint8), wp.uint8, cpu),
+            _shared(corners.astype(np.int32).reshape(-1, 4), wp.vec4i, cpu),
+            _shared(ge.astype(np.int32).reshape(-1, 6), vec6i, cpu),
+            _shared(code.astype(np.int32), wp.int32, cpu),
+            _shared(code_ok.view(np.uint8).ravel(), wp.uint8, cpu),
+            _shared(hits.astype(np.int32, copy=False), wp.int32, cpu),
+            _shared(t_hit, wp.float64, cpu),
+            _shared(hit_of, wp.int32, cpu),
+            _shared(edge_nodes, wp.vec2i, cpu),
+            _ROUNDS,
+        ]
+        self.edited = [_shared(node_cut, wp.uint8, cpu), _shared(edge_cut, wp.uint8, cpu),
+                       _shared(dropped.view(np.uint8), wp.uint8, cpu),
+                       _shared(state.is_protected.view(np.uint8), wp.uint8, cpu)]  # fmt: skip
+        self.chosen = wp.empty(max(M + A, 1), dtype=wp.int32, device=cpu)
+        self.stuck = wp.empty(max(4 * A, 1), dtype=wp.int32, device=cpu)
+
+    def run(self, moved: np.ndarray) -> None:
+        """The look-ahead from the nodes ``moved`` (int) a round changed."""
+        cpu = wp.get_device("cpu")
+        mark = np.zeros(len(self.node_cut), dtype=np.uint8)
+        mark[moved] = 1
+        listed = np.zeros(max(self.room, len(moved), 1), dtype=np.int32)
+        listed[: len(moved)] = moved
+        count = np.array([len(moved), 0], dtype=np.int32)
+        wp.launch(k.look_ahead_kernel, dim=1, device=cpu,
+                  inputs=[*self.fixed, *self.edited, _shared(mark, wp.uint8, cpu), _shared(listed, wp.int32, cpu),
+                          _shared(count, wp.int32, cpu), self.chosen, self.stuck])  # fmt: skip
+        if count[1]:  # (corners kept uncut were protected)
+            self.state.protected = np.flatnonzero(self.state.is_protected)
 
 
 def _triple_keys(tri: np.ndarray, node_count: int) -> np.ndarray:

@@ -237,6 +237,132 @@ def mark_edges_in_use_kernel(
             in_use[cell_edges[c][j]] = wp.uint8(1)
 
 
+@wp.func
+def _snap_edge(edges: vec6i, bits: int, hit_of: wp.array(dtype=wp.int32), t_hit: wp.array(dtype=wp.float64)) -> int:
+    """The snap rule's edge: of the cut edges of a tet (``bits`` over ``edges``), the one whose split point lies
+    nearest an end (the first in edge order on a tie)."""
+    best = int(-1)
+    best_d = wp.float64(2.0)
+    for j in range(6):
+        if ((bits >> j) & 1) != 0:
+            st = t_hit[hit_of[edges[j]] - 1]
+            d = wp.min(st, wp.float64(1.0) - st)
+            if d < best_d:
+                best_d = d
+                best = edges[j]
+    return best
+
+
+@wp.kernel(enable_backward=False)
+def look_ahead_kernel(
+    rows_nodes: wp.array(dtype=wp.vec4i),
+    rows_edges: wp.array(dtype=vec6i),
+    own: wp.array(dtype=wp.uint8),
+    rec_corners: wp.array(dtype=wp.vec4i),
+    rec_edges: wp.array(dtype=vec6i),
+    rec_code: wp.array(dtype=wp.int32),
+    code_ok: wp.array(dtype=wp.uint8),
+    hits: wp.array(dtype=wp.int32),
+    t_hit: wp.array(dtype=wp.float64),
+    hit_of: wp.array(dtype=wp.int32),
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    rounds: int,
+    node_cut: wp.array(dtype=wp.uint8),
+    edge_cut: wp.array(dtype=wp.uint8),
+    dropped: wp.array(dtype=wp.uint8),
+    locked: wp.array(dtype=wp.uint8),
+    mark: wp.array(dtype=wp.uint8),
+    moved: wp.array(dtype=wp.int32),
+    moved_count: wp.array(dtype=wp.int32),
+    chosen: wp.array(dtype=wp.int32),
+    stuck: wp.array(dtype=wp.int32),
+):
+    """The classification's look-ahead, one thread: until no tet round the ``moved`` nodes (``mark``) lacks a
+    table entry for its code (cells cut on their own, ``own``; progressive records on their accumulated
+    codes), each one that does snaps by the snap rule, all at once per pass: the cut edge whose split point
+    lies nearest an end makes that end a cut node, or, where the end may not be cut (``locked``), drops
+    its hit; a record with no edge cut now keeps its cut corners uncut (and locked). The nodes a pass
+    changed are the next pass's ``moved`` (``moved_count``: their count, and the corners kept uncut in all);
+    ``edge_cut`` holds the hits kept at the last pass's start."""
+    count = int(moved_count[0])
+    for _pass in range(rounds):
+        for h in range(hits.shape[0]):
+            ends = edge_nodes[hits[h]]
+            keep = wp.uint8(0)
+            if node_cut[ends[0]] == wp.uint8(0) and node_cut[ends[1]] == wp.uint8(0) and dropped[h] == wp.uint8(0):
+                keep = wp.uint8(1)
+            edge_cut[hits[h]] = keep
+        rows = int(0)
+        for i in range(rows_nodes.shape[0]):
+            if own[i] != wp.uint8(0):
+                cn = rows_nodes[i]
+                if mark[cn[0]] + mark[cn[1]] + mark[cn[2]] + mark[cn[3]] != wp.uint8(0):
+                    ce = rows_edges[i]
+                    ebits = int(0)
+                    for j in range(6):
+                        if edge_cut[ce[j]] != wp.uint8(0):
+                            ebits = ebits | (1 << j)
+                    nbits = int(0)
+                    for m in range(4):
+                        if node_cut[cn[m]] != wp.uint8(0):
+                            nbits = nbits | (1 << m)
+                    if ebits != 0 and code_ok[ebits * 16 + nbits] == wp.uint8(0):
+                        chosen[rows] = _snap_edge(ce, ebits, hit_of, t_hit)
+                        rows += 1
+        stuck_count = int(0)
+        for r in range(rec_corners.shape[0]):
+            cn = rec_corners[r]
+            if mark[cn[0]] + mark[cn[1]] + mark[cn[2]] + mark[cn[3]] != wp.uint8(0):
+                ge = rec_edges[r]
+                ebits = int(0)
+                for j in range(6):
+                    if ge[j] >= 0:  # noqa: SIM102 (a kernel does not short-circuit: edge_cut[-1] would be read)
+                        if edge_cut[ge[j]] != wp.uint8(0):
+                            ebits = ebits | (1 << j)
+                nbits = int(0)
+                for m in range(4):
+                    if node_cut[cn[m]] != wp.uint8(0):
+                        nbits = nbits | (1 << m)
+                if (ebits != 0 or nbits != 0) and code_ok[(rec_code[r] | ebits) * 16 + nbits] == wp.uint8(0):
+                    if ebits != 0:
+                        chosen[rows] = _snap_edge(ge, ebits, hit_of, t_hit)
+                        rows += 1
+                    else:
+                        for m in range(4):
+                            if ((nbits >> m) & 1) != 0:
+                                stuck[stuck_count] = cn[m]
+                                stuck_count += 1
+        if rows == 0 and stuck_count == 0:
+            break
+        moved_count[1] = moved_count[1] + stuck_count
+        for q in range(count):
+            mark[moved[q]] = wp.uint8(0)
+        count = int(0)
+        for q in range(stuck_count):
+            node_cut[stuck[q]] = wp.uint8(0)
+            locked[stuck[q]] = wp.uint8(1)
+            moved[count] = stuck[q]
+            count += 1
+        for q in range(rows):
+            e = chosen[q]
+            ends = edge_nodes[e]
+            target = ends[1]
+            if t_hit[hit_of[e] - 1] < wp.float64(0.5):
+                target = ends[0]
+            if locked[target] == wp.uint8(0):
+                node_cut[target] = wp.uint8(1)
+                moved[count] = target
+                count += 1
+            else:
+                dropped[hit_of[e] - 1] = wp.uint8(1)
+                moved[count] = ends[0]
+                moved[count + 1] = ends[1]
+                count += 2
+        for q in range(count):
+            mark[moved[q]] = wp.uint8(1)
+    moved_count[0] = count
+
+
 # -- classification of the changed tets: table entry, rank permutation, rest volume, positivity -------------------
 
 #: a sub-tet is flat below this x the cube of its longest edge: ten times the simulator's degenerate volume (so
