@@ -441,10 +441,10 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         blocked = state.is_protected[target]
         node_cut[target[~blocked]] = 1
         dropped |= np.isin(hits, e_sel[blocked])
-        # look-ahead on the codes alone: the cells round the nodes this changed whose codes the tables lack
-        # now (mostly a progressive code with a cut node: the next tet along the blade's front, which the
-        # next round would snap the same way) snap by the same rule until none is left, so that the next
-        # round (which also checks every sub-tet's shape) settles more than one tet of the front
+        # look-ahead on the codes alone: the cells and progressive records round the nodes this changed whose
+        # codes the tables lack now (mostly a progressive code with a cut node: the next tet along the blade's
+        # front, which the next round would snap the same way) snap by the same rule until none is left, so
+        # that the next round (which also checks every sub-tet's shape) settles more than one tet of the front
         moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel()])
         if look is None:
             look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,

@@ -157,6 +157,27 @@ def flag_positive_kernel(values: wp.array(dtype=float), offset: int, flags: wp.a
     flags[i] = wp.where(values[i] >= 0.0, 1, 0)
 
 
+@wp.func
+def _tet_code(
+    nodes: wp.vec4i, edges: vec6i, edge_cut: wp.array(dtype=wp.uint8), node_cut: wp.array(dtype=wp.uint8)
+) -> int:
+    """A tet's ``edge_code | node_code << 6``: its cut edges (an edge -1 is not cut) and cut nodes."""
+    value = int(0)
+    for j in range(6):
+        if edges[j] >= 0:  # noqa: SIM102 (a kernel does not short-circuit: edge_cut[-1] would be read)
+            if edge_cut[edges[j]] != wp.uint8(0):
+                value = value | (1 << j)
+    for m in range(4):
+        if node_cut[nodes[m]] != wp.uint8(0):
+            value = value | (1 << (6 + m))
+    return value
+
+
+@wp.func
+def _marked(mark: wp.array(dtype=wp.uint8), nodes: wp.vec4i) -> bool:
+    return mark[nodes[0]] + mark[nodes[1]] + mark[nodes[2]] + mark[nodes[3]] != wp.uint8(0)
+
+
 @wp.kernel(enable_backward=False)
 def cell_codes_kernel(
     cell_nodes: wp.array(dtype=wp.vec4i),
@@ -169,14 +190,7 @@ def cell_codes_kernel(
     """Per cell (the rows of the cells a cut may code, gathered once): ``edge_code | node_code << 6`` (6
     cut-edge bits in TET_EDGES order, 4 cut-node bits)."""
     i = wp.tid() + offset
-    value = int(0)
-    for j in range(6):
-        if edge_cut[cell_edges[i][j]] != wp.uint8(0):
-            value = value | (1 << j)
-    for m in range(4):
-        if node_cut[cell_nodes[i][m]] != wp.uint8(0):
-            value = value | (1 << (6 + m))
-    code[i] = value
+    code[i] = _tet_code(cell_nodes[i], cell_edges[i], edge_cut, node_cut)
 
 
 @wp.kernel(enable_backward=False)
@@ -294,38 +308,21 @@ def look_ahead_kernel(
             edge_cut[hits[h]] = keep
         rows = int(0)
         for i in range(rows_nodes.shape[0]):
-            if own[i] != wp.uint8(0):
-                cn = rows_nodes[i]
-                if mark[cn[0]] + mark[cn[1]] + mark[cn[2]] + mark[cn[3]] != wp.uint8(0):
-                    ce = rows_edges[i]
-                    ebits = int(0)
-                    for j in range(6):
-                        if edge_cut[ce[j]] != wp.uint8(0):
-                            ebits = ebits | (1 << j)
-                    nbits = int(0)
-                    for m in range(4):
-                        if node_cut[cn[m]] != wp.uint8(0):
-                            nbits = nbits | (1 << m)
-                    if ebits != 0 and code_ok[ebits * 16 + nbits] == wp.uint8(0):
-                        chosen[rows] = _snap_edge(ce, ebits, hit_of, t_hit)
-                        rows += 1
+            if own[i] != wp.uint8(0) and _marked(mark, rows_nodes[i]):
+                code = _tet_code(rows_nodes[i], rows_edges[i], edge_cut, node_cut)
+                ebits, nbits = code & 63, code >> 6
+                if ebits != 0 and code_ok[ebits * 16 + nbits] == wp.uint8(0):
+                    chosen[rows] = _snap_edge(rows_edges[i], ebits, hit_of, t_hit)
+                    rows += 1
         stuck_count = int(0)
         for r in range(rec_corners.shape[0]):
             cn = rec_corners[r]
-            if mark[cn[0]] + mark[cn[1]] + mark[cn[2]] + mark[cn[3]] != wp.uint8(0):
-                ge = rec_edges[r]
-                ebits = int(0)
-                for j in range(6):
-                    if ge[j] >= 0:  # noqa: SIM102 (a kernel does not short-circuit: edge_cut[-1] would be read)
-                        if edge_cut[ge[j]] != wp.uint8(0):
-                            ebits = ebits | (1 << j)
-                nbits = int(0)
-                for m in range(4):
-                    if node_cut[cn[m]] != wp.uint8(0):
-                        nbits = nbits | (1 << m)
-                if (ebits != 0 or nbits != 0) and code_ok[(rec_code[r] | ebits) * 16 + nbits] == wp.uint8(0):
+            if _marked(mark, cn):
+                code = _tet_code(cn, rec_edges[r], edge_cut, node_cut)
+                ebits, nbits = code & 63, code >> 6
+                if code != 0 and code_ok[(rec_code[r] | ebits) * 16 + nbits] == wp.uint8(0):
                     if ebits != 0:
-                        chosen[rows] = _snap_edge(ge, ebits, hit_of, t_hit)
+                        chosen[rows] = _snap_edge(rec_edges[r], ebits, hit_of, t_hit)
                         rows += 1
                     else:
                         for m in range(4):
