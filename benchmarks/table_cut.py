@@ -36,7 +36,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import warpblob as wb  # noqa: E402
 from warpblob.cut import cut  # noqa: E402
 from warpblob.cut._command import _sweep  # noqa: E402
-from _common import RESULTS, machine, write_json  # noqa: E402
+from _common import RESULTS, load_average, machine, speed_probe, write_json  # noqa: E402
 from bench_cut import SPLIT_KINDS  # noqa: E402
 
 #: cell size giving a tet count nearest the thesis' mesh, and the thesis' figures (SPEC section 6)
@@ -123,6 +123,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", default=os.path.join(RESULTS, "table_cut.json"), help="results file")
     args = ap.parse_args(argv)
+    load_before, speed_before = load_average(), speed_probe()
     results = {name: reproduce(name) for name in MODELS}
     print(markdown(results))
     for name, res in results.items():
@@ -131,6 +132,8 @@ def main(argv=None):
               f"{b['volume']:.6g} -> {a['volume']:.6g}; per cut (split, sub-tets, kinds): "
               + "; ".join(f"{c['plane']} {c['split']}, {c['sub_tets']}, {c['tets_split']}" for c in res["cuts"]))  # fmt: skip
     write_json(args.json, {"table": "thesis Table 6.4", "snap": SNAP, "machine": machine(), "models": results,
+                           "load_average_before": load_before, "load_average_after": load_average(),
+                           "speed_probe": {"before": speed_before, "after": speed_probe()},
                            "thesis": {n: m[1] for n, m in MODELS.items()}, "thesis_new_per_cut": THESIS_NEW_PER_CUT})  # fmt: skip
     print(f"wrote {args.json}")
 

@@ -36,7 +36,7 @@ from warpblob.cut import SweepSurface, cut  # noqa: E402
 from warpblob.mesh import TetStructure  # noqa: E402
 from warpblob.scenarios._drilling import (  # noqa: E402
     APPROACH, CRANIOTOMY_SITES, DRILL_RADIUS, EGGSHELL_RADII, OVERSHOOT, _holes, _surface_height)
-from _common import load_average, machine, table  # noqa: E402
+from _common import load_average, machine, speed_probe, table  # noqa: E402
 
 FRAME, FRAMES = 1.0 / 60.0, 30
 
@@ -113,7 +113,7 @@ def main(argv=None):
     ap.add_argument("--json", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results",
                                                    "table_drill.json"))  # fmt: skip
     args = ap.parse_args(argv)
-    load_before = load_average()
+    load_before, speed_before = load_average(), speed_probe()
     rows = eggshell(args.eggshell_cellsize) + skull(args.head_cellsize)
     cols = [("case", "case", "s"), ("cells_before", "cells", ",d"), ("cells_after", "after", ",d"),
             ("increase_percent", "+%", ".1f"), ("new_cells", "new", ",d"), ("removed", "replaced", ",d"),
@@ -124,6 +124,7 @@ def main(argv=None):
           "holes; ms: the cut (warm), per frame for the cut-per-frame row")  # fmt: skip
     payload = {"benchmark": "table_drill", "rows": rows, "load_average_before": load_before,
                "load_average_after": load_average(), "machine": machine(),
+               "speed_probe": {"before": speed_before, "after": speed_probe()},
                "thesis": {"eggshell": {"before": 2280, "after": 2400}, "skull_tets_cut": [845, 940]}}  # fmt: skip
     import json
 
