@@ -160,19 +160,25 @@ def test_element_pass_after_a_cut_is_the_full_pass():
         np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(), err_msg=name)
 
 
-def test_successive_cuts_keep_the_state_and_the_element_data():
-    """Three strokes, each applied to the stepped simulation: after each the old nodes keep their positions,
-    velocities and the fixed nodes their targets (the rebuilt buffers are the old ones where they have
-    room), the new nodes sit where the structure put them, and every element array equals one built from
+@pytest.mark.parametrize("room", [None, 0.0])
+def test_successive_cuts_keep_the_state_and_the_element_data(room, monkeypatch):
+    """Three strokes, each applied to the stepped simulation (odd and even step counts: either of the double
+    buffers current): after each the old nodes keep their positions, velocities, external forces and the
+    fixed nodes their targets (the rebuilt buffers are the old ones where they have room; with no room kept,
+    copies into new ones), the new nodes sit where the structure put them, move with the velocity of the
+    points they were made at and carry no external force, and every element array equals one built from
     scratch, bit for bit (incidence merged, host arrays grown in place)."""
     from warpblob.sim._elements import Elements
 
+    if room is not None:
+        monkeypatch.setattr("warpblob._stages.ROOM", room)
     sim, _ = _cut_simulation()
     s = sim._structure
+    sim.external_forces = np.tile([0.0, 0.0, 0.5], (sim.node_count, 1))
     for k, y in enumerate((0.12, 0.3, 0.4)):
-        sim.step(2)
+        sim.step(k + 1)
         s.set_positions(sim.positions)
-        x, v, target = sim.positions, sim.velocities, sim._target.numpy().copy()
+        x, v, target, external = sim.positions, sim.velocities, sim._target.numpy().copy(), sim.external_forces
         a = np.array([[0.05, y, 0.7], [0.95, y + 0.02, 0.7]])
         r = cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.4 + 0.02 * k)), collect=False)
         sim.apply_cut(r)
@@ -181,7 +187,13 @@ def test_successive_cuts_keep_the_state_and_the_element_data():
         np.testing.assert_array_equal(sim.positions[:n], x)
         np.testing.assert_array_equal(sim.velocities[:n], v)
         np.testing.assert_array_equal(sim._target.numpy()[:n], target)
+        np.testing.assert_array_equal(sim.external_forces[:n], external)
         np.testing.assert_array_equal(sim.positions[n:], np.asarray(s.node_position)[n : sim.node_count])
+        np.testing.assert_array_equal(sim._target.numpy()[n:], sim.positions[n:])
+        np.testing.assert_array_equal(sim.external_forces[n:], 0.0)
+        ends, w = r.node_sources.astype(np.int64), r.node_weights.astype(np.float64)[:, None]
+        expected = ((1.0 - w) * v[ends[:, 0]] + w * v[ends[:, 1]]).astype(np.float32)
+        np.testing.assert_array_equal(sim.velocities[r.new_nodes.astype(np.int64)], expected)
         e = sim.elements
         fresh = Elements(e.rest_host, e.tets_host, e.alive_host, e.young_host, e.poisson_host, e.density_host,
                          device=e.device)  # fmt: skip
@@ -356,3 +368,31 @@ def test_rebuild_checks_the_new_nodes_data_before_changing_anything():
     assert sim.tet_count == T and sim.node_count == N and sim.elements.tet_count == T
     sim.apply_cut(r)
     assert sim.tet_count == len(s.cell_nodes) and sim.node_count == len(s.node_rest)
+
+
+def test_rebound_launches_step_as_freshly_recorded_ones(monkeypatch):
+    """A rebuild after a cut rebinds the solver's recorded launches (new sizes, new arrays) instead of recording
+    them anew: cuts with steps between (odd and even counts) give the same positions and CG iterations, bit
+    for bit, as with every launch recorded afresh."""
+    from warpblob.sim._solver import Prepared
+
+    def run():
+        sim, _ = _cut_simulation()
+        s = sim._structure
+        for k, y in enumerate((0.12, 0.3, 0.4)):
+            sim.step(k + 1)
+            s.set_positions(sim.positions)
+            a = np.array([[0.05, y, 0.7], [0.95, y + 0.02, 0.7]])
+            sim.apply_cut(cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.4 + 0.02 * k)), collect=False))
+        sim.step(3)
+        return sim.positions, sim.velocities, sim.stats["cg_iterations_total"]
+
+    rebind, rebound = Prepared.rebind, []
+    monkeypatch.setattr(Prepared, "rebind", lambda self, *a: rebound.append(rebind(self, *a)) or rebound[-1])
+    kept = run()
+    assert sum(rebound) >= 3 * 13, rebound  # every launch of every rebuild's solver rebound
+    monkeypatch.setattr(Prepared, "rebind", lambda self, *a: False)
+    fresh = run()
+    np.testing.assert_array_equal(kept[0], fresh[0])
+    np.testing.assert_array_equal(kept[1], fresh[1])
+    assert kept[2] == fresh[2] > 0

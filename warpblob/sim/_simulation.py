@@ -306,31 +306,47 @@ class Simulation:
             height, friction = ground, 0.5
         return _number("ground height", height), _number("ground friction", friction, low=0.0, strict=False)
 
-    def _allocate(self, positions: np.ndarray, velocities: np.ndarray, sources: np.ndarray | None = None) -> None:
+    def _allocate(self, positions: np.ndarray, velocities: np.ndarray, sources: np.ndarray | None = None, *,
+                  kept: int = 0) -> None:  # fmt: skip
         """Buffers, element states and the solver for the current elements (``sources``: the new nodes'
-        sources after a cut's edit, for the coarse space to be carried over, :meth:`rebuild`)."""
+        sources after a cut's edit, for the coarse space to be carried over, :meth:`rebuild`).
+
+        ``kept``: a rebuild's old node count, whose positions, velocities, targets and external forces stay
+        in place (``positions`` and ``velocities`` then give the added nodes' rows only: the added nodes'
+        targets are their positions, their external forces zero); 0 sets every row from the arrays.
+        """
         dev, e = self.device, self.elements
         self._carry = None  # (state, tets, changed tets): what the next _refresh may carry over (rebuild)
         N, T = e.node_count, e.tet_count
         # the per-node buffers live in kept bases with room (a rebuild after a cut reuses them: fresh pages
         # cost more than the writes); double buffers: a step writes the other one, so a failed step leaves
-        # the state as it was
-        self._x = [self._node_buffer(f"x{i}", N, wp.vec3) for i in (0, 1)]
-        self._v = [self._node_buffer(f"v{i}", N, wp.vec3) for i in (0, 1)]
-        self._x[0].assign(np.asarray(positions, dtype=np.float32))
-        self._v[0].assign(np.asarray(velocities, dtype=np.float32))
+        # the state as it was. A rebuild's current buffers become the first ones, their rows in place.
+        cur = getattr(self, "_cur", 0)
+        old = {"x": self._x[cur], "v": self._v[cur], "target": self._target, "external": self._external} if kept else {}
+        if kept and cur == 1:
+            bases = self._kept
+            for name in ("x", "v"):
+                bases[f"{name}0"], bases[f"{name}1"] = bases[f"{name}1"], bases[f"{name}0"]
+        self._x = [self._node_buffer(f"x{i}", N, wp.vec3, old.get("x") if i == 0 else None, kept) for i in (0, 1)]
+        self._v = [self._node_buffer(f"v{i}", N, wp.vec3, old.get("v") if i == 0 else None, kept) for i in (0, 1)]
+        self._target = self._node_buffer("target", N, wp.vec3, old.get("target"), kept)
+        self._external = self._node_buffer("external", N, wp.vec3, old.get("external"), kept)
+        added = np.asarray(positions, dtype=np.float32)
+        if N > kept:
+            for buffer, rows in ((self._x[0], added), (self._v[0], np.asarray(velocities, dtype=np.float32)),
+                                 (self._target, added)):  # fmt: skip
+                (buffer[kept:] if kept else buffer).assign(rows)
+            (self._external[kept:] if kept else self._external).zero_()
         for buffer in (self._x[1], self._v[1]):
             buffer.zero_()
         # a rebuild's element states keep their buffers: the current one becomes state 0 (its values for the
         # tets that stay are then in place for the carried pass, see _refresh)
-        old = getattr(self, "_states", None)
-        reuse = (None, None) if old is None else (old[self._cur], old[1 - self._cur])
+        states = getattr(self, "_states", None)
+        reuse = (None, None) if states is None else (states[cur], states[1 - cur])
         self._cur = 0
-        self._target = self._node_buffer("target", N, wp.vec3)
-        wp.copy(self._target, self._x[0])
-        self._external, self._moved = (self._node_buffer(name, N, wp.vec3) for name in ("external", "moved"))
+        self._moved = self._node_buffer("moved", N, wp.vec3)
         self._flags = self._node_buffer("flags", N, wp.uint8)
-        for buffer in (self._external, self._moved, self._flags):
+        for buffer in (self._moved, self._flags):
             buffer.zero_()
         self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
         # the structure's piece count (through faces, so through nodes too), where it knows it: one piece
@@ -347,16 +363,22 @@ class Simulation:
         self._momentum = float(np.sqrt(np.sum(self._mass**2)))
         if not (self._mass > 0).any():
             raise SimulationError("volume has no mass: every live tet has zero volume")
-        massive = e.rest_host[self._mass > 0]
-        lo, hi = massive.min(axis=0), massive.max(axis=0)
+        # (np.compress and a reduction per column: a boolean row selection and a reduction along the rows of
+        # an (N, 3) array take numpy several times as long, 1-2 ms at 20K nodes)
+        massive = np.compress(self._mass > 0, e.rest_host, axis=0)
+        lo, hi = (np.array([f(massive[:, j]) for j in range(3)]) for f in (np.min, np.max))
         self._size = float(np.linalg.norm(hi - lo)) or 1.0
         self._fixed_mask = np.zeros(N, dtype=bool)
         self._moving = False
 
-    def _node_buffer(self, name: str, n: int, dtype) -> wp.array:
-        """(n,) buffer ``name`` (not initialized) in a base kept between rebuilds (:func:`room`)."""
-        kept = self.__dict__.setdefault("_kept", {})
-        kept[name], view = room(kept.get(name), n, dtype, self.device)
+    def _node_buffer(self, name: str, n: int, dtype, old: wp.array | None = None, kept: int = 0) -> wp.array:
+        """(n,) buffer ``name`` (not initialized) in a base kept between rebuilds (:func:`room`); with ``old``,
+        its first ``kept`` rows hold ``old``'s (copied where the base had to be made anew)."""
+        bases = self.__dict__.setdefault("_kept", {})
+        base = bases.get(name)
+        bases[name], view = room(base, n, dtype, self.device)
+        if kept and old is not None and bases[name] is not base:
+            wp.copy(view, old, count=kept)
         return view
 
     def _coarse_stats(self) -> dict:
@@ -1024,9 +1046,7 @@ class Simulation:
                                                                        or src.min() < 0 or src.max() >= old_n))):
             raise SimulationError(f"rebuild: {grow} nodes were added; new_sources must be ({grow},) ints in "
                                   f"[0, {old_n}), got {new_sources!r}")  # fmt: skip
-        x, v = self.positions, self.velocities
-        # (copies: the new buffers are the old ones where they have room)
-        target, external, mask = self._target.numpy().copy(), self._external.numpy().copy(), self._fixed_mask
+        mask = self._fixed_mask
         if material_new is not None:
             values = np.asarray(material_new)
             slots = np.arange(e.tet_count) if tet_ids is None else np.asarray(tet_ids).ravel()
@@ -1052,10 +1072,9 @@ class Simulation:
         # a cut's kind of edit (the changed old tets all dead now) lets the coarse space be carried over
         old_ids = None if tet_ids is None else np.asarray(tet_ids, dtype=np.int64).ravel()
         follow = src is not None and old_ids is not None and not e.alive_host[old_ids[old_ids < old_t]].any()
-        self._allocate(pad(x, added), pad(v, vnew), src.astype(np.int64) if follow else None)
+        # the old nodes' positions, velocities, targets and external forces stay where they are
+        self._allocate(added, vnew, src.astype(np.int64) if follow else None, kept=old_n)
         self._carry = carry
-        self._target.assign(pad(target, added))
-        self._external.assign(pad(external, np.zeros((grow, 3), np.float32)))
         self._fixed_mask = pad(mask, fnew)
         self._anchor_mask = pad(self._anchor_mask, np.zeros(grow, dtype=bool))
         try:

@@ -107,27 +107,61 @@ def split_launch(kernel, dim: int, before: list, after: list, device, threads, g
 class Prepared:
     """A kernel over ``[0, dim)`` recorded once as one launch per piece, replayed by calling the object.
 
-    The pieces are contiguous, one per thread (each at least ``grain``
-    items) as in :func:`split_launch`; replaying skips the argument packing
-    and overload lookup of ``wp.launch``. :meth:`set` changes an argument
-    (named as in the kernel's signature) in every piece.
+    The pieces are contiguous, one per thread (each at least ``grain`` items)
+    as in :func:`split_launch`; replaying skips the argument packing and
+    overload lookup of ``wp.launch``. :meth:`set` changes an argument (named
+    as in the kernel's signature) in every piece; :meth:`rebind` gives the
+    recorded launches new sizes and arguments (a rebuild's: cheaper than
+    recording them anew).
     """
 
     def __init__(self, kernel, dim: int, before: list, after: list, device, threads, grain: int):
+        self.kernel = kernel
         self._index = {arg.label: i for i, arg in enumerate(kernel.adj.args)}
+        self._launches, self._args = [], []
+        bounds = self._bounds(dim, device, threads, grain)
+        for b0, b1 in zip(bounds[:-1], bounds[1:]):
+            args = [*before, b0, *after]
+            self._launches.append(wp.launch(kernel, dim=b1 - b0, inputs=args, device=device, record_cmd=True))
+            self._args.append(args)
+
+    @staticmethod
+    def _bounds(dim: int, device, threads, grain: int) -> list:
+        """The pieces' bounds: ``[0, ..., dim]``, one piece per thread (each at least ``grain`` items), at least
+        one piece (empty where ``dim`` is 0)."""
         n = threads if threads is not None else thread_count()
         pieces = 1 if device.is_cuda or n <= 1 or dim < 2 * grain else min(n, dim // grain)
         bounds = [dim * i // pieces for i in range(pieces + 1)]
-        self._launches = [
-            wp.launch(kernel, dim=b1 - b0, inputs=[*before, b0, *after], device=device, record_cmd=True)
-            for b0, b1 in zip(bounds[:-1], bounds[1:])
-            if b1 > b0
-        ]
+        return [b for i, b in enumerate(bounds) if i == 0 or b > bounds[i - 1]] or [0, 0]
+
+    @classmethod
+    def reuse(cls, old: Prepared | None, kernel, dim: int, before: list, after: list, device, threads,
+              grain: int) -> Prepared:  # fmt: skip
+        """``old`` rebound to the new sizes and arguments (:meth:`rebind`) where it can be, else a new one."""
+        if old is not None and old.rebind(kernel, dim, before, after, device, threads, grain):
+            return old
+        return cls(kernel, dim, before, after, device, threads, grain)
+
+    def rebind(self, kernel, dim: int, before: list, after: list, device, threads, grain: int) -> bool:
+        """Give the recorded launches ``dim`` items and the arguments ``before`` and ``after`` (only those that
+        are not the objects recorded are packed again). False, nothing changed, where that needs another
+        kernel, device or number of pieces."""
+        bounds = self._bounds(dim, device, threads, grain)
+        if kernel is not self.kernel or len(bounds) - 1 != len(self._launches) or self._launches[0].device != device:
+            return False
+        for item, args, b0, b1 in zip(self._launches, self._args, bounds[:-1], bounds[1:]):
+            for i, value in enumerate((*before, b0, *after)):
+                if value is not args[i]:
+                    item.set_param_at_index(i, value)
+                    args[i] = value
+            item.set_dim(b1 - b0)
+        return True
 
     def set(self, name: str, value) -> None:
         index = self._index[name]
-        for item in self._launches:
+        for item, args in zip(self._launches, self._args):
             item.set_param_at_index(index, value)
+            args[index] = value
 
     def __call__(self) -> None:
         first, *rest = self._launches
@@ -276,31 +310,44 @@ class ImplicitSolver:
         # (not zeroed: every product writes all of it before a node's row reads its live corners)
         self._bases["corners"], self.corner_out = room(previous_bases.get("corners"), 4 * T, wp.vec3, dev)
         blocks = block_count(N, dev)
-        self.partials = wp.zeros((5, blocks), dtype=float, device=dev)
+        kept = getattr(previous, "partials", None)
+        if kept is not None and kept.shape == (5, blocks) and kept.device == dev:
+            self.partials = kept
+            self.partials.zero_()
+        else:
+            self.partials = wp.zeros((5, blocks), dtype=float, device=dev)
         th, P = threads, self.partials
+        # the recorded launches: the previous solver's rebound to the new sizes and arrays where they can be
+        recorded, self._prepared = getattr(previous, "_prepared", {}), {}
+
+        def prepare(key, kernel, dim, before, after, grain):
+            self._prepared[key] = Prepared.reuse(recorded.get(key), kernel, dim, before, after, dev, th, grain)
+            return self._prepared[key]
+
         elem = [e.tets, e.volume, e.mu, e.lam]
         rows = [e.node_offsets, e.node_corners, self.corner_out, e.mass, self.axes]
         # per state (its rotations) the tet products of the solution guess (x, set per solve) and of p
         self._multiply = {
             id(s): {
-                name: Prepared(k.multiply_elements_kernel, T, [vec, *elem, s.rotated, self.axes], [self.corner_out],
-                               dev, th, TET_GRAIN)  # fmt: skip
+                name: prepare(("multiply", i, name), k.multiply_elements_kernel, T,
+                              [vec, *elem, s.rotated, self.axes], [self.corner_out], TET_GRAIN)  # fmt: skip
                 for name, vec in (("x", self.p), ("p", self.p))
             }
-            for s in states
+            for i, s in enumerate(states)
         }
         # a block kernel is split over threads from NODE_GRAIN nodes a piece, like the per-node kernels
         grain = max(1, blocks * NODE_GRAIN // max(N, 1))
         contact = [self.contact_weight, self.contact_block, 0.0]
-        self._start = Prepared(k.start_cg_kernel, blocks,
-                               [*rows, self.inverse_block, self.rhs, self.p, 1.0, 0.0, *contact, N],
-                               [self.r, self.z, self.p, P], dev, th, grain)  # fmt: skip
-        self._product = Prepared(k.product_cg_kernel, blocks, [*rows, self.p, 1.0, 0.0, *contact, N], [self.Ap, P],
-                                 dev, th, grain)  # fmt: skip
-        self._update = [Prepared(k.update_cg_kernel, blocks, [self.inverse_block, self.p, self.Ap, parity, N],
-                                 [self.p, self.r, self.z, P], dev, th, grain) for parity in (0, 1)]  # fmt: skip
-        self._direction = [Prepared(k.direction_cg_kernel, blocks, [self.z, parity, N], [self.p, P], dev, th, grain)
-                           for parity in (0, 1)]  # fmt: skip
+        self._start = prepare("start", k.start_cg_kernel, blocks,
+                              [*rows, self.inverse_block, self.rhs, self.p, 1.0, 0.0, *contact, N],
+                              [self.r, self.z, self.p, P], grain)  # fmt: skip
+        self._product = prepare("product", k.product_cg_kernel, blocks, [*rows, self.p, 1.0, 0.0, *contact, N],
+                                [self.Ap, P], grain)  # fmt: skip
+        self._update = [prepare(("update", parity), k.update_cg_kernel, blocks,
+                                [self.inverse_block, self.p, self.Ap, parity, N], [self.p, self.r, self.z, P], grain)
+                        for parity in (0, 1)]  # fmt: skip
+        self._direction = [prepare(("direction", parity), k.direction_cg_kernel, blocks, [self.z, parity, N],
+                                   [self.p, P], grain) for parity in (0, 1)]  # fmt: skip
         self._coefficients = None
         self._grain = grain
         self.coarse = None
@@ -313,10 +360,10 @@ class ImplicitSolver:
         self._coarse_key, self._coarse_age = None, 0
         if self.coarse is not None:
             # the start's correction also sets p = z; an iteration's adds its r.z to the new row
-            self._start_coarse = [Prepared(*a, dev, th, g) for *a, g in self._correction(self.r, self.z, row=0,
-                                                                                         set_p=1)]  # fmt: skip
-            self._update_coarse = [[Prepared(*a, dev, th, g) for *a, g in self._correction(self.r, self.z,
-                                                                                           row=1 - parity)]
+            self._start_coarse = [prepare(("start_coarse", i), *a) for i, a in
+                                  enumerate(self._correction(self.r, self.z, row=0, set_p=1))]  # fmt: skip
+            self._update_coarse = [[prepare(("update_coarse", parity, i), *a) for i, a in
+                                    enumerate(self._correction(self.r, self.z, row=1 - parity))]
                                    for parity in (0, 1)]  # fmt: skip
 
     def _correction(self, r: wp.array, z: wp.array, *, row: int, set_p: int = 0, scale: float = 1.0) -> list:
