@@ -396,3 +396,29 @@ def test_rebound_launches_step_as_freshly_recorded_ones(monkeypatch):
     np.testing.assert_array_equal(kept[0], fresh[0])
     np.testing.assert_array_equal(kept[1], fresh[1])
     assert kept[2] == fresh[2] > 0
+
+
+def test_the_energy_budget_follows_a_cut():
+    """After a cut the step's energy budget (kinetic + elastic energy at the state) is updated from the changed
+    tets and the nodes whose masses changed: it equals a full pass over every node and tet to rounding, over
+    successive cuts of a moving, strained body."""
+    sim, r = _cut_simulation()
+    s = sim._structure
+
+    def full():
+        x, v = sim._x[sim._cur], sim._v[sim._cur]
+        _, sums = sim._reduce(x, x, v, sim._state)
+        return sums["kinetic"] + sums["elastic"]
+
+    assert r.tets_added > 0 and sim.elements.touched_nodes is not None
+    for k, y in enumerate((None, 0.3, 0.4)):
+        if y is not None:
+            sim.step(k + 1)
+            s.set_positions(sim.positions)
+            a = np.array([[0.05, y, 0.7], [0.95, y + 0.02, 0.7]])
+            sim.apply_cut(cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.4 + 0.02 * k)), collect=False))
+        x, v = sim._x[sim._cur], sim._v[sim._cur]
+        reference = full()
+        kinetic = sim._reduce(x, x, v, sim._state)[1]["kinetic"]
+        assert kinetic > 0.05 * reference > 0  # both parts count
+        assert sim._budget == pytest.approx(reference, rel=1e-6), k

@@ -536,9 +536,27 @@ class Simulation:
         topology change (:meth:`rebuild`) only for the changed tets, the others' carried over."""
         x, v = self._x[self._cur], self._v[self._cur]
         carry, self._carry = self._carry, None
+        prior, self._prior = getattr(self, "_prior", None), None
+        if carry is None or prior is None or self._bodies is not None:
+            self._state.compute(self.elements, x, self.threads, carry=carry)
+            _, sums = self._reduce(x, x, v, self._state)
+            self._budget = sums["kinetic"] + sums["elastic"]
+            return
+        # a rebuild's budget (kinetic + elastic energy) follows the change: the energies of the changed tets
+        # and the kinetic energies of the nodes whose masses changed, old ones out, new ones in (float64 sums
+        # of a few hundred terms, not a pass over every node and tet; the same to rounding)
+        budget, mass = prior
+        state, count, ids, nodes = carry
+        T = self.elements.tet_count
+        old = np.unique(ids[(ids >= 0) & (ids < count)])
+        before = state.energy.numpy()[old].astype(np.float64).sum()
         self._state.compute(self.elements, x, self.threads, carry=carry)
-        _, sums = self._reduce(x, x, v, self._state)
-        self._budget = sums["kinetic"] + sums["elastic"]
+        after = self._state.energy.numpy()[np.concatenate([old, np.arange(count, T)])].astype(np.float64).sum()
+        nodes = np.asarray(nodes, dtype=np.int64)
+        speed = (v.numpy()[nodes].astype(np.float64) ** 2).sum(axis=1)
+        kinetic = 0.5 * float((self._mass[nodes] - np.where(nodes < len(mass), mass[np.minimum(nodes, len(mass) - 1)],
+                                                            0.0)) @ speed)  # fmt: skip
+        self._budget = budget + float(after - before) + kinetic
 
     @property
     def _state(self) -> ElementState:
@@ -1069,18 +1087,20 @@ class Simulation:
         # the element pass of the tets not rebuilt carries over (same positions, same element data)
         carry = None if tet_ids is None else (self._state, old_t, np.asarray(tet_ids, dtype=np.int64),
                                               e.touched_nodes)  # fmt: skip
+        # (and the energy budget at this state with the masses it was taken with, for the refresh to update)
+        prior = None if carry is None or e.touched_nodes is None else (self._budget, self._mass)
         # a cut's kind of edit (the changed old tets all dead now) lets the coarse space be carried over
         old_ids = None if tet_ids is None else np.asarray(tet_ids, dtype=np.int64).ravel()
         follow = src is not None and old_ids is not None and not e.alive_host[old_ids[old_ids < old_t]].any()
         # the old nodes' positions, velocities, targets and external forces stay where they are
         self._allocate(added, vnew, src.astype(np.int64) if follow else None, kept=old_n)
-        self._carry = carry
+        self._carry, self._prior = carry, prior
         self._fixed_mask = pad(mask, fnew)
         self._anchor_mask = pad(self._anchor_mask, np.zeros(grow, dtype=bool))
         try:
             self._update_flags()  # (its _refresh takes the carried state)
         finally:
-            self._carry = None  # never to a later refresh, whose positions may differ
+            self._carry = self._prior = None  # never to a later refresh, whose positions may differ
         self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count
         if self._embedding is not None:
             self._embedding = embed(e, self._embedding.mesh, threads=self.threads)
