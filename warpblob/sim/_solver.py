@@ -324,30 +324,34 @@ class ImplicitSolver:
             self._prepared[key] = Prepared.reuse(recorded.get(key), kernel, dim, before, after, dev, th, grain)
             return self._prepared[key]
 
+        # the recorded launches take the solver's own buffers whole, with their room (every kernel of them
+        # reads and writes the first N nodes or 4 T corners only, by its sizes): the same objects over the
+        # rebuilds that keep the bases, so a rebind packs only the element arrays and the sizes again
+        w = self._bases
         elem = [e.tets, e.volume, e.mu, e.lam]
-        rows = [e.node_offsets, e.node_corners, self.corner_out, e.mass, self.axes]
+        rows = [e.node_offsets, e.node_corners, w["corners"], e.mass, w["axes"]]
         # per state (its rotations) the tet products of the solution guess (x, set per solve) and of p
         self._multiply = {
             id(s): {
                 name: prepare(("multiply", i, name), k.multiply_elements_kernel, T,
-                              [vec, *elem, s.rotated, self.axes], [self.corner_out], TET_GRAIN)  # fmt: skip
-                for name, vec in (("x", self.p), ("p", self.p))
+                              [w["p"], *elem, s.rotated, w["axes"]], [w["corners"]], TET_GRAIN)  # fmt: skip
+                for name in ("x", "p")
             }
             for i, s in enumerate(states)
         }
         # a block kernel is split over threads from NODE_GRAIN nodes a piece, like the per-node kernels
         grain = max(1, blocks * NODE_GRAIN // max(N, 1))
-        contact = [self.contact_weight, self.contact_block, 0.0]
+        contact = [w["contact_weight"], w["contact_block"], 0.0]
         self._start = prepare("start", k.start_cg_kernel, blocks,
-                              [*rows, self.inverse_block, self.rhs, self.p, 1.0, 0.0, *contact, N],
-                              [self.r, self.z, self.p, P], grain)  # fmt: skip
-        self._product = prepare("product", k.product_cg_kernel, blocks, [*rows, self.p, 1.0, 0.0, *contact, N],
-                                [self.Ap, P], grain)  # fmt: skip
+                              [*rows, w["inverse_block"], w["rhs"], w["p"], 1.0, 0.0, *contact, N],
+                              [w["r"], w["z"], w["p"], P], grain)  # fmt: skip
+        self._product = prepare("product", k.product_cg_kernel, blocks, [*rows, w["p"], 1.0, 0.0, *contact, N],
+                                [w["Ap"], P], grain)  # fmt: skip
         self._update = [prepare(("update", parity), k.update_cg_kernel, blocks,
-                                [self.inverse_block, self.p, self.Ap, parity, N], [self.p, self.r, self.z, P], grain)
+                                [w["inverse_block"], w["p"], w["Ap"], parity, N], [w["p"], w["r"], w["z"], P], grain)
                         for parity in (0, 1)]  # fmt: skip
-        self._direction = [prepare(("direction", parity), k.direction_cg_kernel, blocks, [self.z, parity, N],
-                                   [self.p, P], grain) for parity in (0, 1)]  # fmt: skip
+        self._direction = [prepare(("direction", parity), k.direction_cg_kernel, blocks, [w["z"], parity, N],
+                                   [w["p"], P], grain) for parity in (0, 1)]  # fmt: skip
         self._coefficients = None
         self._grain = grain
         self.coarse = None
@@ -361,23 +365,27 @@ class ImplicitSolver:
         if self.coarse is not None:
             # the start's correction also sets p = z; an iteration's adds its r.z to the new row
             self._start_coarse = [prepare(("start_coarse", i), *a) for i, a in
-                                  enumerate(self._correction(self.r, self.z, row=0, set_p=1))]  # fmt: skip
+                                  enumerate(self._correction(w["r"], w["z"], row=0, set_p=1, wide=True))]  # fmt: skip
             self._update_coarse = [[prepare(("update_coarse", parity, i), *a) for i, a in
-                                    enumerate(self._correction(self.r, self.z, row=1 - parity))]
+                                    enumerate(self._correction(w["r"], w["z"], row=1 - parity, wide=True))]
                                    for parity in (0, 1)]  # fmt: skip
 
-    def _correction(self, r: wp.array, z: wp.array, *, row: int, set_p: int = 0, scale: float = 1.0) -> list:
+    def _correction(self, r: wp.array, z: wp.array, *, row: int, set_p: int = 0, scale: float = 1.0,
+                    wide: bool = False) -> list:  # fmt: skip
         """The launches ``(kernel, dim, before, after, grain)`` of ``z += scale S P Ac^-1 P^T S r`` in order:
-        restriction, the coarse solve (one thread: the triangular solves are sequential), prolongation (which adds its part of ``r.z`` to partial ``row`` per CG
-        block and, with ``set_p``, sets ``p = z``)."""
+        restriction, the coarse solve (one thread: the triangular solves are sequential), prolongation (which
+        adds its part of ``r.z`` to partial ``row`` per CG block and, with ``set_p``, sets ``p = z``);
+        ``wide``: with the solver's buffers whole (the recorded launches')."""
         c, N = self.coarse, self.elements.node_count
+        axes, p, mode = ((self._bases["coarse_axes"], self._bases["p"], c._bases["node_mode"]) if wide
+                         else (self.coarse_axes, self.p, c.node_mode))  # fmt: skip
         return [
             (k.restrict_kernel, c.aggregate_count,
-             [c.aggregate_offsets, c.aggregate_nodes, self.coarse_axes, c.node_mode, r], [c.rc], 1 << 30),
+             [c.aggregate_offsets, c.aggregate_nodes, axes, mode, r], [c.rc], 1 << 30),
             (k.solve_coarse_kernel, 1, [c.lower, c.first, c.scale, c.rc], [c.work, c.zc], 1),
             (k.prolong_cg_kernel, self.partials.shape[1],
-             [c.node_aggregate, c.node_mode, self.coarse_axes, r, c.zc, float(scale), int(row), int(set_p), N],
-             [z, self.p, self.partials], self._grain),
+             [c.node_aggregate, mode, axes, r, c.zc, float(scale), int(row), int(set_p), N],
+             [z, p, self.partials], self._grain),
         ]  # fmt: skip
 
     def set_rigid(self, bodies) -> None:
