@@ -85,7 +85,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from .._stages import ROOM, room
+from .._stages import ROOM, column_bounds, room
 from ..mesh._structure import _connected, _unique_inverse
 from . import _kernels as k
 
@@ -133,13 +133,15 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int,
         (then by piece).
     """
     out = np.full(len(rest), -1, dtype=np.int32)
-    pts = np.asarray(rest, dtype=np.float64)[active]
+    # (np.compress and per-column bounds: numpy's boolean row selection and reductions along the rows of a
+    # narrow array take several times as long)
+    pts = np.compress(active, np.asarray(rest, dtype=np.float64), axis=0)
     if len(pts) == 0:
         return out, 0, 1.0
     piece = np.zeros(len(pts), dtype=np.int64) if pieces is None else np.asarray(pieces, dtype=np.int64)[active]
     count = int(piece.max()) + 1
-    lo = pts.min(axis=0)
-    span = pts.max(axis=0) - lo
+    lo, hi = column_bounds(pts)
+    span = hi - lo
     extent = float(span.max()) or 1.0
     want = int(np.clip(round(len(pts) / nodes), 1, limit))
     size = float(np.prod(np.maximum(span, 1e-3 * extent)) / want) ** (1.0 / 3.0)
@@ -150,7 +152,7 @@ def aggregate(rest: np.ndarray, active: np.ndarray, *, nodes: int, limit: int,
 
     def cells(h):
         c = np.floor((pts[:, axes] - lo[axes]) / h).astype(np.int64)
-        width = c.max(axis=0) + 1
+        width = column_bounds(c)[1] + 1
         return _unique_inverse(((c[:, 0] * width[1] + c[:, 1]) * width[2] + c[:, 2]) * count + piece)
 
     # the occupied cells of a lattice scale about as size^-3: two corrections land near the aim

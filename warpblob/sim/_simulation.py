@@ -46,7 +46,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
-from .._stages import room
+from .._stages import column_bounds, room
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
 from ._coarse import node_pieces
@@ -363,10 +363,8 @@ class Simulation:
         self._momentum = float(np.sqrt(np.sum(self._mass**2)))
         if not (self._mass > 0).any():
             raise SimulationError("volume has no mass: every live tet has zero volume")
-        # (np.compress and a reduction per column: a boolean row selection and a reduction along the rows of
-        # an (N, 3) array take numpy several times as long, 1-2 ms at 20K nodes)
-        massive = np.compress(self._mass > 0, e.rest_host, axis=0)
-        lo, hi = (np.array([f(massive[:, j]) for j in range(3)]) for f in (np.min, np.max))
+        # (np.compress: a boolean row selection takes numpy several times as long, 0.5 ms at 20K nodes)
+        lo, hi = column_bounds(np.compress(self._mass > 0, e.rest_host, axis=0))
         self._size = float(np.linalg.norm(hi - lo)) or 1.0
         self._fixed_mask = np.zeros(N, dtype=bool)
         self._moving = False
