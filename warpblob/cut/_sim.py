@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import CutError, SimulationError
+from .._stages import column_bounds
 from ._cut import CutResult, _materials, cut
 from ._sweep import SweepSurface, cutting_edges
 
@@ -154,7 +155,7 @@ class Cutter:
         started = bool(self._rows_a)
         if not started:
             x = np.asarray(sim.positions, dtype=np.float64)
-            low, high = x.min(axis=0), x.max(axis=0)
+            low, high = column_bounds(x)
             grow = 0.05 * float(np.linalg.norm(high - low))
             tb = self.tool.bounds(self.path.pose(times))
             meets = np.all((tb[:, 0] <= high + grow) & (tb[:, 1] >= low - grow), axis=1)

@@ -55,7 +55,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import WarpblobError
 from .._parallel import launch, submit, thread_count
-from .._stages import mark_heads_kernel
+from .._stages import mark_heads_kernel, rows_all, rows_any
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
@@ -1026,7 +1026,7 @@ class _RestCellGrid:
         lower = np.asarray(lower, np.float64).reshape(-1, 3)
         upper = np.asarray(upper, np.float64).reshape(-1, 3)
         top = self.origin + self.dims * self.spacing
-        inside = ~(np.any(upper < self.origin, axis=1) | np.any(lower > top, axis=1))
+        inside = ~(rows_any(upper < self.origin) | rows_any(lower > top))
         lower, upper = lower[inside], upper[inside]
         if self.cells == 0 or len(lower) == 0:
             return np.zeros(0, np.int64)
@@ -2373,7 +2373,7 @@ class TetStructure:
         faces = faces.reshape(-1, 3).astype(np.int32)
         pts = st["node"]["rest" if rest else "position"][used].astype(np.float32)
         on_cut = st["node"]["origin"][used] > 0
-        is_cut = on_cut[faces].all(axis=1)
+        is_cut = rows_all(on_cut[faces])
         normals = np.zeros_like(pts, dtype=np.float64)
         fnorm = np.cross(pts[faces[:, 1]] - pts[faces[:, 0]], pts[faces[:, 2]] - pts[faces[:, 0]]).astype(np.float64)
         for j in range(3):

@@ -20,7 +20,7 @@ import warp as wp
 
 from .._errors import SimulationError
 from .._parallel import launch, thread_count
-from .._stages import ROOM, room
+from .._stages import ROOM, room, rows_any
 from ..mesh._structure import csr
 from . import _kernels as k
 
@@ -114,7 +114,7 @@ def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.nd
     cpu = wp.get_device("cpu")
     tets = np.asarray(tets).reshape(-1, 4)
     rows, live = tets[ids].astype(np.int64), np.asarray(alive, dtype=bool)[ids]
-    outside = live & ((rows < 0) | (rows >= N)).any(axis=1)
+    outside = live & rows_any((rows < 0) | (rows >= N))
     names = ids if names is None else np.asarray(names).ravel()
     if outside.any():
         j = int(np.argmax(outside))
