@@ -297,17 +297,19 @@ class CoarseSpace:
         return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=dev.is_cuda)
 
     def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots,
-                   kept: dict) -> None:  # fmt: skip
+                   kept: dict, order: np.ndarray | None = None) -> None:  # fmt: skip
         """Store the aggregates, the slot layout and its grouping (kept on the host too, for :meth:`follow`),
         and make the per-node and per-slot buffers (in the bases ``kept``, the space followed from, where
-        they have room: fresh pages cost more than the writes)."""
+        they have room: fresh pages cost more than the writes). ``order``: the aggregated nodes by aggregate,
+        then by index (default: sorted here)."""
         dev, N, G = e.device, e.node_count, self.aggregate_count
-        order = np.argsort(node_aggregate, kind="stable")
-        order = order[node_aggregate[order] >= 0]
+        if order is None:
+            order = np.argsort(node_aggregate, kind="stable")
+            order = order[node_aggregate[order] >= 0]
         offsets = np.zeros(G + 1, dtype=np.int32)
         offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
         self._host = {"aggregate": node_aggregate, "start": start, "pairs": pairs, "pair_offsets": pair_offsets,
-                      "pair_slots": pair_slots}  # fmt: skip
+                      "pair_slots": pair_slots, "order": order}  # fmt: skip
         self.node_aggregate = self._array(node_aggregate)
         self.aggregate_offsets, self.aggregate_nodes = self._array(offsets), self._array(order.astype(np.int32))
         # a tet's slots are found again from these by the coupling kernel (no (16 T,) table of them)
@@ -404,7 +406,14 @@ class CoarseSpace:
         c = CoarseSpace.__new__(CoarseSpace)
         c.elements, c.axes, c.threads, c.cell = e, axes, self.threads, self.cell
         c.aggregate_count, c.size = G, self.size
-        c._set_slots(e, node_aggregate, start, c_start, alive_wp, pairs, pair_offsets, pair_slots, self._bases)
+        # the nodes by aggregate, merged rather than sorted again: the old ones in their order (less those left
+        # without mass), each added one after its aggregate's old ones (its index is past theirs)
+        kept = host["order"][node_aggregate[host["order"]] >= 0]
+        added_nodes = np.arange(old_n, N)[node_aggregate[old_n:] >= 0]
+        added_nodes = added_nodes[np.argsort(node_aggregate[added_nodes], kind="stable")]
+        at = np.searchsorted(node_aggregate[kept], node_aggregate[added_nodes], side="right")
+        c._set_slots(e, node_aggregate, start, c_start, alive_wp, pairs, pair_offsets, pair_slots, self._bases,
+                     np.insert(kept, at, added_nodes))  # fmt: skip
         # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
         for name in ("pair_aggregates", "coarse", "first_host", "first", "lower", "scale", "work", "rc", "zc"):
             setattr(c, name, getattr(self, name))
