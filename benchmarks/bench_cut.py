@@ -46,7 +46,8 @@ the scalpel's frames one after the other (``stroke_step(frame)``, frame 0 the
 ``stroke`` case's strip, each next one 1/6 cm further along the heading):
 each frame's strip is cut (``collect=False``) and the simulation follows it
 (``apply_cut``: the FEM rebuild); median ms of the cut, of the rebuild and of
-both, over the frames after the first.
+both, over the frames after the first, of the fastest of ``SIM_RUNS`` (3) such
+simulations by that median (the JSON keeps every run's median frame).
 
 Drill (``drill`` rows; issue 15): a bone plate ``box_tetmesh`` of
 [0, 4] x [0, 4] x [0, 0.6] (cm; about 10K, 66K, the thesis skull's size, and
@@ -121,29 +122,39 @@ def stroke_step(frame: int = 0) -> SweepSurface:
 
 #: frames of the scalpel in a simulation (``sim`` rows), the first of them not timed
 SIM_FRAMES = 9
+#: simulations per ``sim`` row (each a fresh one over the same frames): the row is the one whose median frame
+#: is fastest, as the other rows take the best of their repeats (a single simulation's 8 frames swing by 40%
+#: between runs on this shared machine)
+SIM_RUNS = 3
 
 
-def run_sim_stroke(mesh: wb.TetMesh) -> dict:
+def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS) -> dict:
     """The scalpel's frames in a simulation of the mesh: per frame the strip it sweeps is cut
     (``collect=False``) and the simulation follows the cut (``apply_cut``), frame after frame on one
-    simulation; medians over the frames after the first (ms)."""
-    s = TetStructure.from_tetmesh(mesh)
-    sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0)
-    cut_ms, fem_ms = [], []
-    for frame in range(SIM_FRAMES):
-        sweep = stroke_step(frame)
-        t0 = time.perf_counter()
-        result = cut(s, sweep, collect=False)
-        t1 = time.perf_counter()
-        apply_cut(sim, result)
-        t2 = time.perf_counter()
-        if frame:
-            cut_ms.append(1e3 * (t1 - t0))
-            fem_ms.append(1e3 * (t2 - t1))
-    total = np.add(cut_ms, fem_ms)
-    return {"case": "sim", "tets": mesh.tet_count, "frames": SIM_FRAMES - 1, "cut_ms_median": float(np.median(cut_ms)),
-            "fem_ms_median": float(np.median(fem_ms)), "step_ms_median": float(np.median(total)),
-            "step_ms_max": float(total.max()), "tets_after": sim.tet_count}  # fmt: skip
+    simulation; medians over the frames after the first (ms), of the fastest of ``runs`` simulations (by
+    the median frame; every run's median frame is kept too)."""
+    rows = []
+    for _ in range(runs):
+        s = TetStructure.from_tetmesh(mesh)
+        sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0)
+        cut_ms, fem_ms = [], []
+        for frame in range(SIM_FRAMES):
+            sweep = stroke_step(frame)
+            t0 = time.perf_counter()
+            result = cut(s, sweep, collect=False)
+            t1 = time.perf_counter()
+            apply_cut(sim, result)
+            t2 = time.perf_counter()
+            if frame:
+                cut_ms.append(1e3 * (t1 - t0))
+                fem_ms.append(1e3 * (t2 - t1))
+        total = np.add(cut_ms, fem_ms)
+        rows.append({"case": "sim", "tets": mesh.tet_count, "frames": SIM_FRAMES - 1,
+                     "cut_ms_median": float(np.median(cut_ms)), "fem_ms_median": float(np.median(fem_ms)),
+                     "step_ms_median": float(np.median(total)), "step_ms_max": float(total.max()),
+                     "tets_after": sim.tet_count})  # fmt: skip
+    best = min(rows, key=lambda row: row["step_ms_median"])
+    return {**best, "runs": runs, "runs_step_ms_median": [row["step_ms_median"] for row in rows]}
 
 
 def run_warpblob(mesh: wb.TetMesh, sweep: SweepSurface, repeat: int) -> dict:
@@ -318,8 +329,9 @@ def main(argv=None):
     print(table(sims, [("case", "case", "s"), ("tets", "tets", ",d"), ("frames", "frames", "d"),
                        ("cut_ms_median", "cut ms", ".1f"), ("fem_ms_median", "fem ms", ".1f"),
                        ("step_ms_median", "cut + fem ms", ".1f"), ("step_ms_max", "max", ".1f")]))  # fmt: skip
-    print(f"sim: the scalpel's frames in a simulation of the box (one simulation, {SIM_FRAMES - 1} frames after a "
-          "first): each frame's strip cut, then apply_cut; medians")  # fmt: skip
+    print(f"sim: the scalpel's frames in a simulation of the box ({SIM_FRAMES - 1} frames after a first): each "
+          f"frame's strip cut, then apply_cut; medians of the fastest of {SIM_RUNS} simulations (every run's median "
+          "frame in the JSON)")  # fmt: skip
     rows += sims
     drills = [run_drill(int(size), int(n)) for size in args.drill_sizes.split(",") if size
               for n in args.segments.split(",")]  # fmt: skip
