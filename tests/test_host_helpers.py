@@ -8,7 +8,7 @@ from warpblob._stages import column_bounds, rows_all, rows_any
 
 
 @pytest.mark.parametrize("dtype", [bool, np.uint8, np.int8, np.int32, np.float64])
-@pytest.mark.parametrize("width", range(0, 10))
+@pytest.mark.parametrize("width", range(10))
 def test_row_reductions_are_numpys(dtype, width):
     """Every width (the 1-, 2-, 4- and 8-byte rows read as words, the others by columns), every dtype, and a
     view that is not contiguous: the same as ``any(axis=1)`` and ``all(axis=1)``."""

@@ -277,3 +277,45 @@ def test_two_level_is_a_symmetric_positive_definite_match_of_its_dense_reference
     assert abs(np.sum(r1 * z2) - np.sum(r2 * z1)) <= 1e-5 * np.sqrt(np.sum(r1 * z1) * np.sum(r2 * z2))
     # positive definite: the dense reference's spectrum (D^-1 is, and the coarse part is semi-definite)
     assert np.linalg.eigvalsh(0.5 * (reference + reference.T)).min() > 0
+
+
+
+def test_a_recorded_launch_follows_its_sizes(device):
+    """A recorded launch split in pieces (block-Jacobi's ``z = alpha D^-1 r + beta y``), rebound to other
+    sizes and arrays as a rebuild does, writes what numpy gives over the new range, every piece included; a
+    rebind to another number of pieces is refused and recorded anew; an empty range runs nothing."""
+    from warpblob.sim import _kernels as sk
+    from warpblob.sim._solver import Prepared
+
+    dev = wp.get_device(device)
+    rng = np.random.default_rng(5)
+
+    def case(n):
+        blocks = rng.standard_normal((n, 3, 3)).astype(np.float32)
+        r, y = (rng.standard_normal((n, 3)).astype(np.float32) for _ in range(2))
+        arrays = [wp.array(blocks, dtype=wp.mat33, device=dev), wp.array(r, dtype=wp.vec3, device=dev),
+                  wp.array(y, dtype=wp.vec3, device=dev)]  # fmt: skip
+        z = wp.zeros(n + 5, dtype=wp.vec3, device=dev)  # (room past n: left untouched)
+        expected = 0.5 * np.einsum("nij,nj->ni", blocks, r) - 2.0 * y
+        return [*arrays, 0.5, -2.0], [z], expected
+
+    before, after, expected = case(40)
+    recorded = Prepared(sk.precondition_kernel, 40, before, after, dev, 2, 8)
+    recorded()
+    np.testing.assert_allclose(after[0].numpy()[:40], expected, rtol=1e-5, atol=1e-5)
+    pieces = len(recorded._launches)
+    for n in (64, 17):  # more items, then fewer, in the same number of pieces
+        before, after, expected = case(n)
+        assert Prepared.reuse(recorded, sk.precondition_kernel, n, before, after, dev, 2, 8) is recorded
+        recorded()
+        np.testing.assert_allclose(after[0].numpy()[:n], expected, rtol=1e-5, atol=1e-5)
+        assert (after[0].numpy()[n:] == 0).all()
+    before, after, expected = case(9)  # one piece below twice the grain (two on a CPU with two threads)
+    fresh = Prepared.reuse(recorded, sk.precondition_kernel, 9, before, after, dev, 2, 8)
+    assert (fresh is recorded) == (len(fresh._launches) == pieces)
+    fresh()
+    np.testing.assert_allclose(after[0].numpy()[:9], expected, rtol=1e-5, atol=1e-5)
+    before, after, _ = case(3)
+    empty = Prepared(sk.precondition_kernel, 0, before, after, dev, 2, 8)
+    empty()
+    assert (after[0].numpy() == 0).all() and not empty.rebind(sk.precondition_kernel, 3, before, after, dev, 2, 8)

@@ -322,7 +322,9 @@ class Simulation:
         # cost more than the writes); double buffers: a step writes the other one, so a failed step leaves
         # the state as it was. A rebuild's current buffers become the first ones, their rows in place.
         cur = getattr(self, "_cur", 0)
-        old = {"x": self._x[cur], "v": self._v[cur], "target": self._target, "external": self._external} if kept else {}
+        old = {}
+        if kept:
+            old = {"x": self._x[cur], "v": self._v[cur], "target": self._target, "external": self._external}
         if kept and cur == 1:
             bases = self._kept
             for name in ("x", "v"):
@@ -551,10 +553,11 @@ class Simulation:
         self._state.compute(self.elements, x, self.threads, carry=carry)
         after = self._state.energy.numpy()[np.concatenate([old, np.arange(count, T)])].astype(np.float64).sum()
         nodes = np.asarray(nodes, dtype=np.int64)
-        speed = (v.numpy()[nodes].astype(np.float64) ** 2).sum(axis=1)
-        kinetic = 0.5 * float((self._mass[nodes] - np.where(nodes < len(mass), mass[np.minimum(nodes, len(mass) - 1)],
-                                                            0.0)) @ speed)  # fmt: skip
-        self._budget = budget + float(after - before) + kinetic
+        was = np.zeros(len(nodes))  # the nodes' masses before (0 for an added node)
+        inside = nodes < len(mass)
+        was[inside] = mass[nodes[inside]]
+        speed = np.einsum("ij,ij->i", *(2 * [v.numpy()[nodes].astype(np.float64)]))  # |v|^2 per node
+        self._budget = budget + float(after - before) + 0.5 * float((self._mass[nodes] - was) @ speed)
 
     @property
     def _state(self) -> ElementState:

@@ -127,12 +127,11 @@ class Prepared:
 
     @staticmethod
     def _bounds(dim: int, device, threads, grain: int) -> list:
-        """The pieces' bounds: ``[0, ..., dim]``, one piece per thread (each at least ``grain`` items), at least
-        one piece (empty where ``dim`` is 0)."""
+        """The pieces' bounds ``[0, ..., dim]``: one piece per thread, each at least ``grain`` items (none where
+        ``dim`` is 0)."""
         n = threads if threads is not None else thread_count()
         pieces = 1 if device.is_cuda or n <= 1 or dim < 2 * grain else min(n, dim // grain)
-        bounds = [dim * i // pieces for i in range(pieces + 1)]
-        return [b for i, b in enumerate(bounds) if i == 0 or b > bounds[i - 1]] or [0, 0]
+        return [dim * i // pieces for i in range(pieces + 1)] if dim > 0 else [0]
 
     @classmethod
     def reuse(cls, old: Prepared | None, kernel, dim: int, before: list, after: list, device, threads,
@@ -147,7 +146,8 @@ class Prepared:
         are not the objects recorded are packed again). False, nothing changed, where that needs another
         kernel, device or number of pieces."""
         bounds = self._bounds(dim, device, threads, grain)
-        if kernel is not self.kernel or len(bounds) - 1 != len(self._launches) or self._launches[0].device != device:
+        if (kernel is not self.kernel or len(bounds) - 1 != len(self._launches) or not self._launches
+                or self._launches[0].device != device):  # fmt: skip
             return False
         for item, args, b0, b1 in zip(self._launches, self._args, bounds[:-1], bounds[1:]):
             for i, value in enumerate((*before, b0, *after)):
@@ -164,6 +164,8 @@ class Prepared:
             args[index] = value
 
     def __call__(self) -> None:
+        if not self._launches:
+            return
         first, *rest = self._launches
         if not rest:
             first.launch()
