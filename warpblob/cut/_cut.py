@@ -75,7 +75,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import CutError
 from .._parallel import launch
-from .._stages import compact, rows_all, rows_any
+from .._stages import column_bounds, compact, rows_all, rows_any
 from ..mesh._structure import NODE_ORIGINS, TetStructure, _shared, _unique_first, union_find_kernel, vec6i
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
@@ -171,7 +171,8 @@ class CutResult:
 def _boxes(sweep: SweepSurface, device) -> tuple[tuple[wp.array, wp.array], wp.array]:
     """The sweep triangles' boxes (lowers, uppers: what the BVH is built on) and their corners."""
     tri = sweep.triangles
-    pad = 1e-6 * max(float(np.linalg.norm(np.ptp(tri.reshape(-1, 3), axis=0))), 1e-12)
+    low, high = column_bounds(tri.reshape(-1, 3))
+    pad = 1e-6 * max(float(np.linalg.norm(high - low)), 1e-12)
     # (elementwise over the three corners: numpy's reduction along that short axis is several times slower)
     lowers = wp.array(np.minimum(np.minimum(tri[:, 0], tri[:, 1]), tri[:, 2]) - pad, dtype=wp.vec3, device=device)
     uppers = wp.array(np.maximum(np.maximum(tri[:, 0], tri[:, 1]), tri[:, 2]) + pad, dtype=wp.vec3, device=device)
