@@ -156,8 +156,9 @@ def test_element_pass_after_a_cut_is_the_full_pass():
     assert e.touched_nodes is not None and 0 < len(e.touched_nodes) < e.node_count
     fresh = Elements(e.rest_host, e.tets_host, e.alive_host, e.young_host, e.poisson_host, e.density_host,
                      device=e.device)  # fmt: skip
-    for name in ("dm_inv", "volume", "mu", "lam", "mass", "node_offsets", "node_corners"):
+    for name in ("dm_inv", "volume", "mu", "lam", "mass"):
         np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(), err_msg=name)
+    _assert_same_incidence(e, fresh)
 
 
 @pytest.mark.parametrize("room", [None, 0.0])
@@ -197,25 +198,39 @@ def test_successive_cuts_keep_the_state_and_the_element_data(room, monkeypatch):
         e = sim.elements
         fresh = Elements(e.rest_host, e.tets_host, e.alive_host, e.young_host, e.poisson_host, e.density_host,
                          device=e.device)  # fmt: skip
-        for name in ("dm_inv", "volume", "mu", "lam", "density", "mass", "node_offsets", "node_corners"):
+        for name in ("dm_inv", "volume", "mu", "lam", "density", "mass"):
             np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(),
                                           err_msg=f"{name} after cut {k}")  # fmt: skip
+        _assert_same_incidence(e, fresh, f"after cut {k}")
     sim.step(2)
     assert np.isfinite(sim.positions).all()
 
 
-def test_incidence_kept_over_rebuilds_is_the_sorted_one(device):
+@pytest.mark.parametrize("tail", ["roomy", "none"])
+def test_incidence_kept_over_rebuilds_is_the_sorted_one(device, tail, monkeypatch):
     """Rebuilds that kill tets, revive dead ones, append tets and nodes, one after another, each merging the
-    touched nodes' lists into those in use: the incidence and the masses equal those of elements built from
-    scratch, bit for bit, after every rebuild (and a rebuild of all tets sorts afresh to the same)."""
+    touched nodes' lists into those in use (in their slots where they fit, else moved to the free tail, or
+    all packed again by a sort where the tail is full): the incidence and the masses equal those of elements
+    built from scratch, bit for bit, after every rebuild (and a rebuild of all tets sorts afresh to the
+    same). With a roomy tail every kind of update is seen without a sort; with none, sorts."""
+    import warpblob.sim._elements as elements
     from warpblob.sim._elements import Elements
 
+    if tail == "none":
+        monkeypatch.setattr(elements, "_TAIL_SHARE", 0.0)
+        monkeypatch.setattr(elements, "_TAIL", 0)
+    sorts = []
+    sort = Elements._sort_incidence
+    monkeypatch.setattr(Elements, "_sort_incidence", lambda self: (sorts.append(1), sort(self))[1])
     m = box_tetmesh((0, 0, 0), (1, 1, 1), (4, 4, 4))
     T = len(m.tets)
     e = Elements(m.nodes, m.tets, np.ones(T, bool), np.full(T, 1e3), np.full(T, 0.3), np.full(T, 1e3), device=device)
     rng = np.random.default_rng(3)
+    kept = moved = 0
     for step in range(4):
         T, N = e.tet_count, e.node_count
+        before = e.node_range.numpy().copy()
+        del sorts[:]
         live, dead = np.flatnonzero(e.alive_host), np.flatnonzero(~e.alive_host)
         kill = rng.choice(live, 7, replace=False)
         revive = dead[: 3]
@@ -229,13 +244,41 @@ def test_incidence_kept_over_rebuilds_is_the_sorted_one(device):
         e.rebuild(ids, tets=tets, alive=alive, rest=rest, young=np.full(len(ids), 1e3),
                   poisson=np.full(len(ids), 0.3), density=np.full(len(ids), 1e3 + step))  # fmt: skip
         assert e.touched_nodes is not None
+        if not sorts:  # the touched old nodes' lists: kept in their slots or moved past every old list
+            after = e.node_range.numpy()[: len(before)]
+            t = e.touched_nodes[e.touched_nodes < len(before)]
+            grew = after[t, 1] - after[t, 0] != before[t, 1] - before[t, 0]
+            kept += int(np.sum(grew & (after[t, 0] == before[t, 0])))
+            moved += int(np.sum(after[t, 0] >= before[:, 1].max()))
+        assert len(sorts) == (tail == "none")
         fresh = Elements(e.rest_host, e.tets_host, e.alive_host, e.young_host, e.poisson_host, e.density_host,
                          device=device)  # fmt: skip
-        for name in ("node_offsets", "node_corners", "mass", "volume"):
+        for name in ("mass", "volume"):
             np.testing.assert_array_equal(getattr(e, name).numpy(), getattr(fresh, name).numpy(),
                                           err_msg=f"{name} after rebuild {step}")  # fmt: skip
+        _assert_same_incidence(e, fresh, f"after rebuild {step}")
+    if tail == "roomy":
+        assert kept > 0 and moved > 0, (kept, moved)
     e.rebuild()
-    np.testing.assert_array_equal(e.node_corners.numpy(), fresh.node_corners.numpy())
+    _assert_same_incidence(e, fresh, "after a rebuild of every tet")
+
+
+def _assert_same_incidence(e, fresh, when: str = "") -> None:
+    """``e``'s incidence lists equal ``fresh``'s (packed by a sort of every corner) node by node, and its
+    lists, wherever they sit in the buffer, do not overlap (each node's slots are its own)."""
+    for a, b, name in zip(e.incidence(), fresh.incidence(), ("offsets", "corners")):
+        np.testing.assert_array_equal(a, b, err_msg=f"incidence {name} {when}")
+    # an independent reference: numpy's stable argsort of every live corner by node
+    live = np.flatnonzero(e.alive_host)
+    nodes = e.tets_host[live].ravel()
+    corners = (4 * live[:, None] + np.arange(4)).ravel()
+    order = np.argsort(nodes, kind="stable")
+    np.testing.assert_array_equal(e.incidence()[1], corners[order], err_msg=f"incidence against numpy {when}")
+    r = e.node_range.numpy().astype(np.int64)
+    used = r[r[:, 1] > r[:, 0]]
+    used = used[np.argsort(used[:, 0])]
+    assert np.all(used[1:, 0] >= used[:-1, 1]), f"two nodes' lists overlap {when}"
+    assert used.size == 0 or used[-1, 1] <= e.node_corners.shape[0]
 
 
 def _reference_layout(c, e) -> tuple:

@@ -19,7 +19,7 @@ import numpy as np
 import warp as wp
 
 from .._errors import SimulationError
-from .._parallel import launch, thread_count
+from .._parallel import launch
 from .._stages import ROOM, room, rows_any
 from ..mesh._structure import csr
 from . import _kernels as k
@@ -157,8 +157,10 @@ def _ascending(ids: np.ndarray) -> np.ndarray:
     return ids if ids.size < 2 or bool((ids[1:] > ids[:-1]).all()) else np.unique(ids)
 
 
-#: the most list entries one thread moves in one piece when the incidence is updated
-_RUN = 1 << 14
+#: the free tail the incidence lists get after a sort (slots for the lists a rebuild makes longer): this share
+#: of the lists' length, and at least _TAIL slots
+_TAIL_SHARE = 0.25
+_TAIL = 1 << 12
 
 
 class Elements:
@@ -175,8 +177,12 @@ class Elements:
 
     Attributes (Warp arrays): ``tets`` (T,) vec4i, ``dm_inv`` (T,) mat33,
     ``volume`` (T,) rest volume (0 for dead tets), ``mu``, ``lam``,
-    ``density`` (T,), ``mass`` (N,) lumped mass, ``node_offsets`` (N + 1,)
-    and ``node_corners`` the CSR incidence. ``rigid_host`` (T,) bool marks
+    ``density`` (T,), ``mass`` (N,) lumped mass, and the incidence: node
+    ``i``'s corners (``4 * tet + local corner``, ascending) are
+    ``node_corners[node_range[i][0]:node_range[i][1]]`` (``node_range`` (N,)
+    vec2i; a list has room after it or sits in the free tail, so that a
+    rebuild rewrites only the lists it changes; :meth:`incidence` packs
+    them). ``rigid_host`` (T,) bool marks
     the tets of rigid materials (:meth:`set_rigid`): their ``mu`` and ``lam``
     are zero on the device, so they add mass but no elastic force or
     stiffness (their nodes move as rigid bodies, :mod:`warpblob.sim._rigid`).
@@ -199,9 +205,8 @@ class Elements:
         self.dm_inv = wp.zeros(0, dtype=wp.mat33, device=device)
         self.volume = wp.zeros(0, dtype=float, device=device)
         # the kept buffers (:func:`~warpblob._stages.room`) under dm_inv, volume, mass, the incidence sort's
-        # keys and, alternating, its lists (_spare: the one the next rebuild writes)
+        # keys and the incidence lists
         self._bases: dict = {}
-        self._spare = 1
         # the kept host buffers under the per-tet host arrays (:meth:`_grown`)
         self._host_bases: dict = {}
         self.rigid_host = np.zeros(self.tet_count, dtype=bool)
@@ -336,46 +341,78 @@ class Elements:
         base[len(a) : rows] = fill
         return base[:rows]
 
-    def _lists_buffer(self, count: int) -> wp.array:
-        """The buffer of the next incidence lists: of two kept ones, the one the lists in use are not in."""
-        self._spare = spare = 1 - self._spare  # (0, 1, 0, ...: never the buffer of the lists in use)
-        self._bases[("corners", spare)], lists = room(self._bases.get(("corners", spare)), count, wp.int32,
-                                                      self.device)  # fmt: skip
-        return lists
-
     def _sort_incidence(self) -> None:
-        """The incidence (:attr:`node_offsets`, :attr:`node_corners`) of every node by a sort of all corners."""
+        """The incidence (:attr:`node_range`, :attr:`node_corners`) of every node by a sort of all corners:
+        the lists packed in node order, with a free tail of about a quarter of them for the lists that later
+        rebuilds make longer (:meth:`_update_incidence`)."""
         dev, T, N = self.device, self.tet_count, self.node_count
         # corners of dead tets sort past the last node, out of every row; the second half is the radix
         # sort's scratch (not initialized); the columns are the corners' indices. On the CPU the keys are
-        # written in a kept buffer (scratch), and the lists into the one of two kept buffers the current
-        # lists are not in (fresh pages of a 16 MB array at 1M tets cost more than the sort's writes)
+        # written in a kept buffer (scratch), and the lists into the kept buffer of the lists (fresh pages
+        # of a 16 MB array at 1M tets cost more than the sort's writes)
         count = 4 * T
+        capacity = count + max(int(count * _TAIL_SHARE), _TAIL)
         cpu = not wp.get_device(dev).is_cuda
+        self._bases["corners"], lists = room(self._bases.get("corners"), capacity, wp.int32, dev)
         if cpu:
             self._bases["rows"], rows_wp = room(self._bases.get("rows"), count, wp.int32, dev)
             rows = rows_wp.numpy()
-            order = self._lists_buffer(count)
         else:
             rows = np.empty(2 * count, dtype=np.int32)
-            order = None
         corner_nodes = rows[:count].reshape(T, 4)
         corner_nodes[:] = self.tets_host
         corner_nodes[~self.alive_host] = N
         if not cpu:
             rows_wp = wp.array(rows, dtype=wp.int32, device=dev)
-        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads, order)
-        self.node_offsets = wp.array(offsets, dtype=wp.int32, device=dev)
-        self.node_corners = wp.array(corners, dtype=wp.int32, device=dev, copy=not cpu)
-        self._offsets_host = offsets
+        offsets, corners = csr(rows_wp, None, count, N, dev, self.threads, lists if cpu else None)
+        if not cpu:
+            wp.copy(lists, wp.array(corners, dtype=wp.int32, device=dev), count=len(corners))
+        self.node_corners = lists
+        self._tail = int(offsets[-1])
+        # (N, 2) first and past-last slot of each node's list, and the slots it may fill in place
+        self._range_host = self._grown("_range_host", N, 0) if hasattr(self, "_range_host") else np.empty((N, 2),
+                                                                                                        np.int32)
+        self._range_host[:, 0], self._range_host[:, 1] = offsets[:-1], offsets[1:]
+        self._room_host = self._grown("_room_host", N, 0) if hasattr(self, "_room_host") else np.empty(N, np.int32)
+        np.subtract(offsets[1:], offsets[:-1], out=self._room_host)
+        self._bind_range()
+
+    def _bind_range(self) -> None:
+        """:attr:`node_range` on the device from the host's ranges (on the CPU the host array itself)."""
+        cuda = wp.get_device(self.device).is_cuda
+        self.node_range = wp.array(self._range_host, dtype=wp.vec2i, device=self.device, copy=cuda)
+
+    def incidence(self) -> tuple[np.ndarray, np.ndarray]:
+        """The incidence as packed CSR on the host: ``(offsets (N + 1,) int32, corners (4 T_live,) int32)``;
+        node ``i``'s corners (``4 * tet + local corner``, ascending) are ``corners[offsets[i]:offsets[i + 1]]``.
+
+        Example:
+            >>> import numpy as np
+            >>> from warpblob.mesh import box_tetmesh
+            >>> m = box_tetmesh((0, 0, 0), (1, 1, 1), (1, 1, 1))
+            >>> T = len(m.tets)
+            >>> e = Elements(m.nodes, m.tets, np.ones(T, bool), np.full(T, 1e3), np.full(T, 0.3), np.full(T, 1e3),
+            ...              device="cpu")
+            >>> offsets, corners = e.incidence()
+            >>> int(offsets[-1]) == 4 * T, bool(np.all(np.diff(corners[offsets[0]:offsets[1]]) > 0))
+            (True, True)
+        """
+        r = self._range_host.astype(np.int64)
+        counts = r[:, 1] - r[:, 0]
+        offsets = np.zeros(len(r) + 1, dtype=np.int32)
+        np.cumsum(counts, out=offsets[1:])
+        lists = self.node_corners.numpy()
+        # each list's slots: its start plus 0 .. count - 1
+        slots = np.repeat(r[:, 0] - offsets[:-1], counts) + np.arange(int(offsets[-1]))
+        return offsets, lists[slots]
 
     def _update_incidence(self, ids: np.ndarray, touched: np.ndarray) -> None:
-        """The incidence after tets ``ids`` changed, from the lists in use: the lists of the ``touched`` nodes
-        (every corner of those tets, old and new; ascending) merged anew, every other list moved as it was
-        (kernels over the touched and the old nodes; the same lists as :meth:`_sort_incidence`'s)."""
+        """The incidence after tets ``ids`` changed: the lists of the ``touched`` nodes (every corner of those
+        tets, old and new; ascending) merged anew, in place where they fit in their slots, else in the free
+        tail with room to grow; every other list stays where it is (one kernel over the touched nodes; the
+        same lists as :meth:`_sort_incidence`'s, which packs them again when the tail is full)."""
         dev, T, N, th = self.device, self.tet_count, self.node_count, self.threads
-        old_offsets, old_corners = self.node_offsets, self.node_corners
-        old_n = len(self._offsets_host) - 1
+        old_n = len(self._room_host)
         changed = np.zeros(T, dtype=np.uint8)
         changed[ids] = 1
         live = _ascending(ids[self.alive_host[ids]]).astype(np.int64)
@@ -389,35 +426,37 @@ class Elements:
         changed_wp = wp.array(changed, dtype=wp.uint8, device=dev)
         add_start_wp = wp.array(add_start, dtype=wp.int32, device=dev)
         count = wp.empty(len(touched), dtype=wp.int32, device=dev)
-        launch(k.incidence_count_kernel, len(touched), [touched_wp, old_offsets, old_corners, changed_wp,
+        launch(k.incidence_count_kernel, len(touched), [touched_wp, self.node_range, self.node_corners, changed_wp,
                add_start_wp], [count], dev, th, min_chunk=1 << 12)  # fmt: skip
-        counts = np.zeros(N, dtype=np.int32)
-        counts[:old_n] = np.diff(self._offsets_host)
-        counts[touched] = count.numpy()
-        offsets = np.zeros(N + 1, dtype=np.int32)
-        np.cumsum(counts, out=offsets[1:])
-        lists = self._lists_buffer(max(int(offsets[-1]), 1))[: int(offsets[-1])]
-        offsets_wp = wp.array(offsets, dtype=wp.int32, device=dev)
-        # the untouched nodes' lists move as they were, in runs between touched nodes (each run one shift),
-        # cut in pieces of at most _RUN entries so that the threads share the work
-        inside = touched[touched < old_n]
-        first = np.concatenate([[0], inside + 1])  # each run's first and past-last old node
-        last = np.concatenate([inside, [old_n]])
-        start, end = self._offsets_host[first].astype(np.int64), self._offsets_host[last].astype(np.int64)
-        shift = offsets[first].astype(np.int64) - start
-        pieces = np.maximum(-(-(end - start) // _RUN), 1)
-        run = np.repeat(np.arange(len(first)), pieces)
-        start = start[run] + _RUN * (np.arange(len(run)) - np.repeat(np.cumsum(pieces) - pieces, pieces))
-        end = np.minimum(start + _RUN, end[run])
-        runs = [wp.array(a.astype(np.int32), dtype=wp.int32, device=dev) for a in (start, end, shift[run])]
-        # (one piece per thread: a piece's launch costs about what moving 10^4 entries does)
-        pieces = th if th is not None else thread_count()
-        launch(k.move_runs_kernel, len(run), [old_corners, *runs], [lists], dev, th,
-               min_chunk=max(1, -(-len(run) // pieces)))  # fmt: skip
-        launch(k.incidence_merge_kernel, len(touched), [touched_wp, old_offsets, old_corners, changed_wp,
-               add_start_wp, wp.array(cols, dtype=wp.int32, device=dev), offsets_wp], [lists], dev, th,
-               min_chunk=1 << 12)  # fmt: skip
-        self.node_offsets, self.node_corners, self._offsets_host = offsets_wp, lists, offsets
+        counts = count.numpy()
+        # a list that fits its slots stays; one that does not moves to the tail, with half as many again
+        inside = touched < old_n
+        fits = np.zeros(len(touched), dtype=bool)
+        fits[inside] = counts[inside] <= self._room_host[touched[inside]]
+        moved = np.flatnonzero(~fits)
+        size = counts[moved] + counts[moved] // 2 + 4
+        if self._tail + int(size.sum()) > self.node_corners.shape[0]:
+            self._sort_incidence()  # (the tail is full: every list packed again)
+            return
+        start = np.zeros(len(touched), dtype=np.int32)
+        start[fits] = self._range_host[touched[fits], 0]
+        start[moved] = self._tail + np.cumsum(size) - size
+        scratch = np.zeros(len(touched) + 1, dtype=np.int32)  # (each merged list's place in the scratch)
+        np.cumsum(counts, out=scratch[1:])
+        launch(k.incidence_merge_kernel, len(touched),
+               [touched_wp, self.node_range, self.node_corners, changed_wp, add_start_wp,
+                wp.array(cols, dtype=wp.int32, device=dev), wp.array(scratch, dtype=wp.int32, device=dev),
+                wp.array(start, dtype=wp.int32, device=dev), wp.empty(max(int(scratch[-1]), 1), dtype=wp.int32,
+                                                                     device=dev)],
+               [self.node_corners], dev, th, min_chunk=1 << 12)  # fmt: skip
+        # commit: the ranges (new nodes' rows appended) and the moved lists' slots
+        self._range_host = self._grown("_range_host", N, 0)
+        self._room_host = self._grown("_room_host", N, 0)
+        self._range_host[touched, 0] = start
+        self._range_host[touched, 1] = start + counts
+        self._room_host[touched[moved]] = size
+        self._tail += int(size.sum())
+        self._bind_range()
 
     def set_rigid(self, mask) -> None:
         """Mark the (T,) bool ``mask`` of tets as rigid: zero Lamé parameters on the device (mass unchanged)."""
@@ -479,13 +518,13 @@ class Elements:
             ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
                    [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
-        if touched is not None and old_n and getattr(self, "node_offsets", None) is not None:
+        if touched is not None and old_n and getattr(self, "node_range", None) is not None:
             self._update_incidence(ids, touched)
         else:
             self._sort_incidence()
         mass, base = self.mass if old_n else None, self._bases.get("mass")
         self._bases["mass"], self.mass = room(base, N, float, dev)
-        gather = [self.node_offsets, self.node_corners, self.volume, self.density]
+        gather = [self.node_range, self.node_corners, self.volume, self.density]
         self.touched_nodes = None if touched is None or not old_n else touched.astype(np.int32)
         if self.touched_nodes is None:
             # (a light kernel: pieces of 2^15 nodes, not the launcher's default, whose many small pieces cost

@@ -223,7 +223,7 @@ def rotate_elements_kernel(
 @wp.kernel(enable_backward=False)
 def gather_elements_kernel(
     nodes: wp.array(dtype=wp.int32),
-    node_offsets: wp.array(dtype=wp.int32),
+    node_range: wp.array(dtype=wp.vec2i),
     node_corners: wp.array(dtype=wp.int32),
     corner_force: wp.array(dtype=wp.vec3),
     corner_block: wp.array(dtype=wp.vec4),
@@ -238,7 +238,8 @@ def gather_elements_kernel(
         i = nodes[i]
     f = wp.vec3()
     D = wp.mat33()
-    for k in range(node_offsets[i], node_offsets[i + 1]):
+    own = node_range[i]
+    for k in range(own[0], own[1]):
         c = node_corners[k]
         f += corner_force[c]
         b = corner_block[c]
@@ -251,7 +252,7 @@ def gather_elements_kernel(
 @wp.kernel(enable_backward=False)
 def gather_masses_kernel(
     nodes: wp.array(dtype=wp.int32),
-    node_offsets: wp.array(dtype=wp.int32),
+    node_range: wp.array(dtype=wp.vec2i),
     node_corners: wp.array(dtype=wp.int32),
     volume: wp.array(dtype=float),
     density: wp.array(dtype=float),
@@ -264,7 +265,8 @@ def gather_masses_kernel(
     if nodes.shape[0] > 0:
         i = nodes[i]
     m = float(0.0)
-    for k in range(node_offsets[i], node_offsets[i + 1]):
+    own = node_range[i]
+    for k in range(own[0], own[1]):
         t = node_corners[k] // 4
         m += 0.25 * density[t] * volume[t]
     mass[i] = m
@@ -273,7 +275,7 @@ def gather_masses_kernel(
 @wp.kernel(enable_backward=False)
 def incidence_count_kernel(
     touched: wp.array(dtype=wp.int32),
-    old_offsets: wp.array(dtype=wp.int32),
+    old_range: wp.array(dtype=wp.vec2i),
     old_corners: wp.array(dtype=wp.int32),
     changed: wp.array(dtype=wp.uint8),
     add_start: wp.array(dtype=wp.int32),
@@ -285,64 +287,57 @@ def incidence_count_kernel(
     u = wp.tid() + offset
     i = touched[u]
     c = add_start[u + 1] - add_start[u]
-    if i < old_offsets.shape[0] - 1:
-        for m in range(old_offsets[i], old_offsets[i + 1]):
+    if i < old_range.shape[0]:
+        own = old_range[i]
+        for m in range(own[0], own[1]):
             if changed[old_corners[m] // 4] == wp.uint8(0):
                 c += 1
     count[u] = c
 
 
 @wp.kernel(enable_backward=False)
-def move_runs_kernel(
-    source: wp.array(dtype=wp.int32),
-    run_start: wp.array(dtype=wp.int32),
-    run_end: wp.array(dtype=wp.int32),
-    shift: wp.array(dtype=wp.int32),
-    offset: int,
-    target: wp.array(dtype=wp.int32),
-):
-    """``target[m + shift[r]] = source[m]`` for ``m`` in run ``r``: ``run_start[r]..run_end[r]``."""
-    r = wp.tid() + offset
-    d = shift[r]
-    for m in range(run_start[r], run_end[r]):
-        target[m + d] = source[m]
-
-
-@wp.kernel(enable_backward=False)
 def incidence_merge_kernel(
     touched: wp.array(dtype=wp.int32),
-    old_offsets: wp.array(dtype=wp.int32),
+    old_range: wp.array(dtype=wp.vec2i),
     old_corners: wp.array(dtype=wp.int32),
     changed: wp.array(dtype=wp.uint8),
     add_start: wp.array(dtype=wp.int32),
     add_corners: wp.array(dtype=wp.int32),
-    offsets: wp.array(dtype=wp.int32),
+    scratch_start: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.int32),
+    scratch: wp.array(dtype=wp.int32),
     offset: int,
     corners: wp.array(dtype=wp.int32),
 ):
     """A touched node's list: its old corners of unchanged tets merged with its corners of changed tets
-    (both ascending), ascending, as a sort of the whole incidence gives it."""
+    (both ascending), ascending, as a sort of the whole incidence gives it; merged into the node's part of
+    ``scratch`` (from ``scratch_start[u]``), then written from ``start[u]`` of ``corners``, which may be
+    where the old list was (the slots of a node's list are its own: no other thread reads or writes them)."""
     u = wp.tid() + offset
     i = touched[u]
     m = int(0)
     m_end = int(0)
-    if i < old_offsets.shape[0] - 1:
-        m = old_offsets[i]
-        m_end = old_offsets[i + 1]
+    if i < old_range.shape[0]:
+        own = old_range[i]
+        m = own[0]
+        m_end = own[1]
     a = add_start[u]
     a_end = add_start[u + 1]
-    d = offsets[i]
+    d = scratch_start[u]
     while m < m_end or a < a_end:
         if m < m_end and changed[old_corners[m] // 4] != wp.uint8(0):
             m += 1
         elif a >= a_end or (m < m_end and old_corners[m] < add_corners[a]):
-            corners[d] = old_corners[m]
+            scratch[d] = old_corners[m]
             d += 1
             m += 1
         else:
-            corners[d] = add_corners[a]
+            scratch[d] = add_corners[a]
             d += 1
             a += 1
+    s = start[u]
+    for j in range(scratch_start[u], d):
+        corners[s + j - scratch_start[u]] = scratch[j]
 
 
 @wp.kernel(enable_backward=False)
@@ -544,7 +539,7 @@ def contact_row(
 @wp.func
 def apply_row(
     i: int,
-    node_offsets: wp.array(dtype=wp.int32),
+    node_range: wp.array(dtype=wp.vec2i),
     node_corners: wp.array(dtype=wp.int32),
     corner_out: wp.array(dtype=wp.vec3),
     mass: wp.array(dtype=float),
@@ -560,7 +555,8 @@ def apply_row(
     per-corner products of ``S p``, summed in incidence order."""
     s = axes[i]
     Kp = wp.vec3()
-    for k in range(node_offsets[i], node_offsets[i + 1]):
+    own = node_range[i]
+    for k in range(own[0], own[1]):
         Kp += corner_out[node_corners[k]]
     pi = p[i]
     sp = wp.cw_mul(s, pi)
@@ -570,7 +566,7 @@ def apply_row(
 
 @wp.kernel(enable_backward=False)
 def gather_products_kernel(
-    node_offsets: wp.array(dtype=wp.int32),
+    node_range: wp.array(dtype=wp.vec2i),
     node_corners: wp.array(dtype=wp.int32),
     corner_out: wp.array(dtype=wp.vec3),
     mass: wp.array(dtype=float),
@@ -602,11 +598,12 @@ def gather_products_kernel(
     s = axes[i]
     Ap = wp.vec3()
     if project != 0:
-        Ap = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff, contact_weight,
+        Ap = apply_row(i, node_range, node_corners, corner_out, mass, axes, p, c_mass, c_stiff, contact_weight,
                        contact_block, c_contact)  # fmt: skip
     else:
         Kp = wp.vec3()
-        for k in range(node_offsets[i], node_offsets[i + 1]):
+        own = node_range[i]
+        for k in range(own[0], own[1]):
             Kp += corner_out[node_corners[k]]
         Ap = contact_row(i, wp.cw_mul(s, c_mass * mass[i] * p[i] + c_stiff * Kp), p[i], s, contact_weight,
                          contact_block, c_contact)  # fmt: skip
@@ -635,7 +632,7 @@ def partial_sum(partials: wp.array2d(dtype=float), row: int) -> float:
 
 @wp.kernel(enable_backward=False)
 def start_cg_kernel(
-    node_offsets: wp.array(dtype=wp.int32),
+    node_range: wp.array(dtype=wp.vec2i),
     node_corners: wp.array(dtype=wp.int32),
     corner_out: wp.array(dtype=wp.vec3),
     mass: wp.array(dtype=float),
@@ -663,7 +660,7 @@ def start_cg_kernel(
     bb = float(0.0)
     for i in range(span[0], span[1]):
         bi = b_vec[i]
-        ri = bi - apply_row(i, node_offsets, node_corners, corner_out, mass, axes, x, c_mass, c_stiff, contact_weight,
+        ri = bi - apply_row(i, node_range, node_corners, corner_out, mass, axes, x, c_mass, c_stiff, contact_weight,
                             contact_block, c_contact)  # fmt: skip
         zi = inverse_block[i] * ri
         r[i] = ri
@@ -679,7 +676,7 @@ def start_cg_kernel(
 
 @wp.kernel(enable_backward=False)
 def product_cg_kernel(
-    node_offsets: wp.array(dtype=wp.int32),
+    node_range: wp.array(dtype=wp.vec2i),
     node_corners: wp.array(dtype=wp.int32),
     corner_out: wp.array(dtype=wp.vec3),
     mass: wp.array(dtype=float),
@@ -700,7 +697,7 @@ def product_cg_kernel(
     span = block_range(blk, partials.shape[1], n)
     pAp = float(0.0)
     for i in range(span[0], span[1]):
-        y = apply_row(i, node_offsets, node_corners, corner_out, mass, axes, p, c_mass, c_stiff, contact_weight,
+        y = apply_row(i, node_range, node_corners, corner_out, mass, axes, p, c_mass, c_stiff, contact_weight,
                       contact_block, c_contact)  # fmt: skip
         Ap[i] = y
         pAp += wp.dot(p[i], y)

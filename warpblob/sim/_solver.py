@@ -240,7 +240,7 @@ class ElementState:
             if ids.size:
                 split_launch(k.rotate_elements_kernel, len(ids), [wp.array(ids, dtype=wp.int32, device=dev),
                              *inputs], out, dev, threads, TET_GRAIN)  # fmt: skip
-        gather = [e.node_offsets, e.node_corners, self.corner_force, self.corner_block]
+        gather = [e.node_range, e.node_corners, self.corner_force, self.corner_block]
         nodes = nodes[0] if carry is not None and nodes and nodes[0] is not None else None
         if nodes is None:
             split_launch(k.gather_elements_kernel, e.node_count, [self._every, *gather],
@@ -331,7 +331,7 @@ class ImplicitSolver:
         # rebuilds that keep the bases, so a rebind packs only the element arrays and the sizes again
         w = self._bases
         elem = [e.tets, e.volume, e.mu, e.lam]
-        rows = [e.node_offsets, e.node_corners, w["corners"], e.mass, w["axes"]]
+        rows = [e.node_range, e.node_corners, w["corners"], e.mass, w["axes"]]
         # per state (its rotations) the tet products of the solution guess (x, set per solve) and of p
         self._multiply = {
             id(s): {
@@ -444,7 +444,7 @@ class ImplicitSolver:
                      [p, e.tets, e.volume, e.mu, e.lam, state.rotated, self.axes if project else self.ones],
                      [self.corner_out], dev, self.threads, TET_GRAIN)  # fmt: skip
         split_launch(k.gather_products_kernel, e.node_count,
-                     [e.node_offsets, e.node_corners, self.corner_out, e.mass, self.axes, p,
+                     [e.node_range, e.node_corners, self.corner_out, e.mass, self.axes, p,
                       out if y is None else y, float(c_mass), float(c_stiff), self.contact_weight, self.contact_block,
                       float(c_contact), float(alpha), float(beta), project],
                      [out], dev, self.threads, NODE_GRAIN)  # fmt: skip
