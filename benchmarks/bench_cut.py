@@ -66,6 +66,11 @@ largest ms per step over the 30 steps of a second, warm stroke (the first
 stroke on another copy compiles), tets split in all, pieces at the end (2:
 the plug is free).
 
+As the ``warpblob`` command does, the objects alive after the imports are
+kept out of Python's garbage collections (``gc.freeze()``): a full
+collection over Warp's kernels' syntax trees takes 0.1-0.2 s, which would
+land in whichever frame Python starts one.
+
 Timing (``benchmarks/_common.py``): wall clock around each whole call,
 warm (one call first, not timed, so kernel compilation is excluded), best of
 ``--repeat``; a fresh mesh structure is built before every call, untimed.
@@ -76,6 +81,7 @@ Writes benchmarks/results/bench_cut.json with the load average.
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import sys
 import time
@@ -301,6 +307,7 @@ def main(argv=None):
     ap.add_argument("--skull", type=float, help="cell size of the layered head whose skull is drilled, 0 for none "
                     f"(default {FULL['skull']}: 66K skull tets)")  # fmt: skip
     args = arguments(ap, FULL, QUICK, argv)
+    gc.freeze()  # the imports' objects out of the garbage collections, as the warpblob command does
     bench = Run("cut", "cutting benchmark: ms per cut, warm, collect=False (gc timed apart)", args)
     planes = {"plane": (ORIGIN, NORMAL), "corner": (CORNER_ORIGIN, CORNER_NORMAL)}
     rows = []

@@ -162,3 +162,25 @@ def test_compile_notice_once_and_only_when_compiling(tmp_path):
     assert _compile.NOTICE not in warm
     verbose = _run_notice_script(tmp_path, "verbose-cache", WARPBLOB_VERBOSE="1")
     assert verbose.count(_compile.NOTICE) == 1
+
+
+def test_the_command_freezes_its_imports_and_a_caller_of_main_keeps_its_own(tmp_path):
+    """The ``warpblob`` command (main() with the process's arguments) freezes the objects of its imports
+    before it runs; main() called by a program with its arguments leaves the program's collector alone."""
+    code = textwrap.dedent(
+        """
+        import gc, sys
+        from warpblob import cli
+        sys.argv = ["warpblob", "info", "tumor"]
+        before = gc.get_freeze_count()
+        cli.main(["info", "tumor"])
+        assert gc.get_freeze_count() == before, "main(argv) froze the caller's objects"
+        cli.main()
+        assert gc.get_freeze_count() > 100000, gc.get_freeze_count()
+        print("ok")
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         cwd=tmp_path)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().endswith("ok")

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import sys
@@ -414,6 +415,10 @@ def main(argv=None) -> int:
     if getattr(args, "samples", 2) < 2:
         print("warpblob: error: --samples must be at least 2", file=sys.stderr)
         return 2
+    if argv is None:  # the process is the command: its imports are done; keep their objects (Warp's kernels'
+        # syntax trees, about 220K) out of the garbage collections, which would stall a frame loop for 0.1-0.2 s
+        # now and then (docs/sim.md); not when a program calls main() with its arguments: its objects are its own
+        gc.freeze()
     try:
         return args.func(args)
     except WarpblobError as exc:
