@@ -543,3 +543,46 @@ def test_look_ahead_follows_the_snap_rule(device):
         np.testing.assert_array_equal(edge_cut[hits] != 0, expected[3])
         snapped += int((node_cut != before).sum())
     assert snapped > 0  # the trials snapped and unlocked nodes
+
+
+def test_a_round_reduction_returns_every_node_it_changed(device):
+    """A round's reduction (``_reduce``) of its bad units: a cell with a new cut edge snaps it onto the end
+    nearest its split point, a snap onto a protected end drops the hit instead, and a progressive record with
+    no new edge keeps its cut corners uncut (protected from then on); the nodes it returns for the look-ahead
+    are the new cut node, both ends of the dropped hit and the corners kept uncut (their edges are cut again,
+    so the codes round them change too)."""
+    from warpblob.cut._cut import _ParentState, _reduce
+
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5)))
+    ys = np.linspace(-0.5, 0.43, 12)  # the blade stops inside the box: progressive records
+    a = np.column_stack([np.full_like(ys, 0.5), ys, np.full_like(ys, -0.5)])
+    cut(s, SweepSurface.from_blade(a, a + (0, 0, 2.0)), device=device)
+    edge_nodes = np.asarray(s.edge_nodes)
+    state = _ParentState(s, edge_nodes)
+    assert state.active.size
+    record = int(state.active[0])
+    corners = s._parents["corners"][record].astype(np.int64)
+    free = ~state.is_protected
+    # two cells away from the records' nodes, each with an edge cut now: one snaps, one meets a protected end
+    cells = [c for c in np.flatnonzero(np.asarray(s.cell_alive))
+             if free[np.asarray(s.cell_nodes)[c]].all() and s.cell_parent[c] < 0][:40:39]  # fmt: skip
+    e1, e2 = (int(np.asarray(s.cell_edges)[c][0]) for c in cells)
+    split_t = np.full(len(edge_nodes), -1.0)
+    split_t[[e1, e2]] = 0.3, 0.8  # nearest the first end of e1, the second end of e2
+    state.is_protected[edge_nodes[e2, 1]] = True
+    node_cut = np.zeros(len(s.node_rest), dtype=np.uint8)
+    node_cut[corners[1]] = 1  # the record's corner cut, with no new edge of its own: it stays uncut
+    hits = np.array(sorted([e1, e2]), dtype=np.int32)
+    dropped = np.zeros(2, dtype=bool)
+    none = [-1] * 6
+    units = {
+        "new_edges": np.array([[e1, *none[1:]], [e2, *none[1:]], none], dtype=np.int64),
+        "parent": np.array([-1, -1, record], dtype=np.int64),
+        "corners": np.vstack([np.asarray(s.cell_nodes)[cells], corners]).astype(np.int64),
+        "cell": np.array([*cells, -1], dtype=np.int64),
+    }
+    moved = _reduce(units, np.ones(3, dtype=bool), split_t, edge_nodes, node_cut, dropped, hits, state)
+    assert node_cut[edge_nodes[e1, 0]] == 1 and node_cut[edge_nodes[e2, 1]] == 0 and node_cut[corners[1]] == 0
+    np.testing.assert_array_equal(dropped, hits == e2)
+    assert state.is_protected[corners[1]] and corners[1] in state.protected
+    assert set(moved.tolist()) == {int(edge_nodes[e1, 0]), *edge_nodes[e2].tolist(), int(corners[1])}

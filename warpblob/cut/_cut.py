@@ -426,28 +426,11 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
             raise CutError(f"cut: {int(bad.sum())} tets keep cut codes the tables cannot split after {_ROUNDS} "
                            f"reductions (first: cell {int(units['cell'][bad][0])}); the structure is "
                            "unchanged")  # fmt: skip
-        # each bad tet snaps its new cut edge nearest an end onto that end (or, where that end may not
-        # be cut, drops the hit)
-        has, e_sel, target = _nearest_ends(units["new_edges"][bad], split_t, edge_nodes_np)
-        # a record left invalid by a cut node at a corner, with no new edge to snap: keep its corners uncut
-        stuck = (units["parent"][bad] >= 0) & ~has
-        if stuck.any():
-            corners = units["corners"][bad][stuck].ravel()
-            corners = corners[node_cut[corners] != 0]
-            node_cut[corners] = 0
-            state.is_protected[corners] = True
-            state.protected = np.union1d(state.protected, corners)
-        if not has.any() and not stuck.any():
-            raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
-                           "structure is unchanged")  # fmt: skip
-        blocked = state.is_protected[target]
-        node_cut[target[~blocked]] = 1
-        dropped |= np.isin(hits, e_sel[blocked])
+        moved = _reduce(units, bad, split_t, edge_nodes_np, node_cut, dropped, hits, state)
         # look-ahead on the codes alone: the cells and progressive records round the nodes this changed whose
         # codes the tables lack now (mostly a progressive code with a cut node: the next tet along the blade's
         # front, which the next round would snap the same way) snap by the same rule until none is left, so
         # that the next round (which also checks every sub-tet's shape) settles more than one tet of the front
-        moved = np.concatenate([target[~blocked], edge_nodes_np[e_sel[blocked]].ravel()])
         if look is None:
             look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,
                               edge_nodes_np, node_cut, edge_cut, dropped)  # fmt: skip
@@ -577,6 +560,34 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
     # one launch below 2048 units (a 10K-tet cut): waking the pool costs more than the second thread gives
     launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=1024)
     return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
+
+
+def _reduce(units: dict, bad: np.ndarray, split_t, edge_nodes: np.ndarray, node_cut: np.ndarray,
+            dropped: np.ndarray, hits: np.ndarray, state: _ParentState) -> np.ndarray:
+    """A round's reduction of its ``bad`` units, in place (``node_cut``, ``dropped``, the state's protected
+    nodes); returns the nodes it changed, where the look-ahead starts.
+
+    Each bad unit snaps its new cut edge nearest an end onto that end (:func:`_nearest_ends`), or, where
+    that end may not be cut, drops the hit; a record left invalid by a cut node at a corner, with no new
+    edge to snap, keeps its corners uncut. The nodes changed: the new cut nodes, both ends of each dropped
+    hit and the corners kept uncut (the edges at them are cut again).
+    """
+    has, e_sel, target = _nearest_ends(units["new_edges"][bad], split_t, edge_nodes)
+    stuck = (units["parent"][bad] >= 0) & ~has
+    uncut = np.zeros(0, dtype=np.int64)
+    if stuck.any():
+        corners = units["corners"][bad][stuck].ravel()
+        uncut = corners[node_cut[corners] != 0]
+        node_cut[uncut] = 0
+        state.is_protected[uncut] = True
+        state.protected = np.union1d(state.protected, uncut)
+    if not has.any() and not stuck.any():
+        raise CutError(f"cut: cell {int(units['cell'][bad][0])} has no valid configuration (a bug); the "
+                       "structure is unchanged")  # fmt: skip
+    blocked = state.is_protected[target]
+    node_cut[target[~blocked]] = 1
+    dropped |= np.isin(hits, e_sel[blocked])
+    return np.concatenate([target[~blocked], edge_nodes[e_sel[blocked]].ravel(), uncut])
 
 
 def _nearest_ends(cand: np.ndarray, split_t, edge_nodes: np.ndarray) -> tuple:

@@ -180,9 +180,9 @@ class Elements:
     ``density`` (T,), ``mass`` (N,) lumped mass, and the incidence: node
     ``i``'s corners (``4 * tet + local corner``, ascending) are
     ``node_corners[node_range[i][0]:node_range[i][1]]`` (``node_range`` (N,)
-    vec2i; a list has room after it or sits in the free tail, so that a
-    rebuild rewrites only the lists it changes; :meth:`incidence` packs
-    them). ``rigid_host`` (T,) bool marks
+    vec2i; a sort packs the lists, and a list that a rebuild makes longer
+    moves to the free tail after them with room to grow, so that a rebuild
+    rewrites only the lists it changes; :meth:`incidence` packs them). ``rigid_host`` (T,) bool marks
     the tets of rigid materials (:meth:`set_rigid`): their ``mu`` and ``lam``
     are zero on the device, so they add mass but no elastic force or
     stiffness (their nodes move as rigid bodies, :mod:`warpblob.sim._rigid`).
