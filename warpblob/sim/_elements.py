@@ -209,6 +209,9 @@ class Elements:
         self._bases: dict = {}
         # the kept host buffers under the per-tet host arrays (:meth:`_grown`)
         self._host_bases: dict = {}
+        # the incidence's (N, 2) first and past-last slot of each node's list, and the slots it may fill in place
+        self._range_host = np.zeros((0, 2), dtype=np.int32)
+        self._room_host = np.zeros(0, dtype=np.int32)
         self.rigid_host = np.zeros(self.tet_count, dtype=bool)
         ids = np.arange(self.tet_count, dtype=np.int32)
         check_tets(self.rest_host, self.tets_host, self.alive_host, ids, threads)
@@ -369,11 +372,9 @@ class Elements:
             wp.copy(lists, wp.array(corners, dtype=wp.int32, device=dev), count=len(corners))
         self.node_corners = lists
         self._tail = int(offsets[-1])
-        # (N, 2) first and past-last slot of each node's list, and the slots it may fill in place
-        self._range_host = self._grown("_range_host", N, 0) if hasattr(self, "_range_host") else np.empty((N, 2),
-                                                                                                        np.int32)
+        self._range_host = self._grown("_range_host", N, 0)
         self._range_host[:, 0], self._range_host[:, 1] = offsets[:-1], offsets[1:]
-        self._room_host = self._grown("_room_host", N, 0) if hasattr(self, "_room_host") else np.empty(N, np.int32)
+        self._room_host = self._grown("_room_host", N, 0)
         np.subtract(offsets[1:], offsets[:-1], out=self._room_host)
         self._bind_range()
 
@@ -441,14 +442,14 @@ class Elements:
         start = np.zeros(len(touched), dtype=np.int32)
         start[fits] = self._range_host[touched[fits], 0]
         start[moved] = self._tail + np.cumsum(size) - size
-        scratch = np.zeros(len(touched) + 1, dtype=np.int32)  # (each merged list's place in the scratch)
-        np.cumsum(counts, out=scratch[1:])
+        scratch_start = np.zeros(len(touched) + 1, dtype=np.int32)  # (each merged list's place in the scratch)
+        np.cumsum(counts, out=scratch_start[1:])
+        scratch = wp.empty(max(int(scratch_start[-1]), 1), dtype=wp.int32, device=dev)
         launch(k.incidence_merge_kernel, len(touched),
                [touched_wp, self.node_range, self.node_corners, changed_wp, add_start_wp,
-                wp.array(cols, dtype=wp.int32, device=dev), wp.array(scratch, dtype=wp.int32, device=dev),
-                wp.array(start, dtype=wp.int32, device=dev), wp.empty(max(int(scratch[-1]), 1), dtype=wp.int32,
-                                                                     device=dev)],
-               [self.node_corners], dev, th, min_chunk=1 << 12)  # fmt: skip
+                wp.array(cols, dtype=wp.int32, device=dev), wp.array(scratch_start, dtype=wp.int32, device=dev),
+                wp.array(start, dtype=wp.int32, device=dev), scratch], [self.node_corners], dev, th,
+               min_chunk=1 << 12)  # fmt: skip
         # commit: the ranges (new nodes' rows appended) and the moved lists' slots
         self._range_host = self._grown("_range_host", N, 0)
         self._room_host = self._grown("_room_host", N, 0)

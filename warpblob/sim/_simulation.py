@@ -556,7 +556,8 @@ class Simulation:
         was = np.zeros(len(nodes))  # the nodes' masses before (0 for an added node)
         inside = nodes < len(mass)
         was[inside] = mass[nodes[inside]]
-        speed = np.einsum("ij,ij->i", *(2 * [v.numpy()[nodes].astype(np.float64)]))  # |v|^2 per node
+        vn = v.numpy()[nodes].astype(np.float64)
+        speed = np.einsum("ij,ij->i", vn, vn)  # |v|^2 per node
         self._budget = budget + float(after - before) + 0.5 * float((self._mass[nodes] - was) @ speed)
 
     @property
