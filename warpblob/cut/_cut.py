@@ -25,7 +25,11 @@ One call of :func:`cut`:
    round removes cut edges, and a code without cut edges is always valid).
    Between rounds, the cells round the nodes a round changed whose codes
    alone the tables lack snap by the same rule at once (a look-ahead: the
-   snap at a blade's front most often makes the next front tet such a code).
+   snap at a blade's front most often makes the next front tet such a code);
+   before a round classifies anything, the tets whose codes the tables lack
+   snap the same way, from their corners (a scalpel's frame meets the tet
+   ahead of the last frame's front with such a code: its classification
+   would be a round the reduction repeats).
 3. **subdivision** by the generated tables (:mod:`warpblob.cut._tables`):
    every cut edge gets two co-located nodes, one joined to each end (SPEC
    section 4); progressive tets get their crack-front points (cell centre,
@@ -387,6 +391,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     edge_cut = np.zeros(E, dtype=np.uint8)  # (written at the hit edges only, each round)
     hit_slots = _OnEdges(hits, E, -1.0)
     look = None  # (the look-ahead's arrays, wrapped when a round first needs it)
+    looked = False  # (the codes were just settled by the look-ahead: classify them whatever they are)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
         edge_cut[hits] = keep
@@ -396,10 +401,23 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         codes = code_wp.numpy().astype(np.int64)
         # pieces of a progressive parent are cut through their parent
         changed = np.flatnonzero((codes != 0) & own_c)
+        extra = _parent_units(state, edge_nodes_np, edge_cut, split_t, node_cut)
+        # codes the tables lack are known from the codes alone: such tets snap by the round's rule (the
+        # look-ahead from their corners) before any is classified, instead of a classification whose round
+        # the reduction then repeats (a stroke's frames: the tet ahead of the last frame's front)
+        if not looked:
+            lacking = _lacking_corners(code_ok, codes[changed], rows_nodes[changed], extra)
+            if lacking.size:
+                if look is None:
+                    look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,
+                                      edge_nodes_np, node_cut, edge_cut, dropped)  # fmt: skip
+                look.run(lacking)
+                looked = True
+                continue
+        looked = False
         stale = changed[stored_code[changed] != codes[changed]]
         fresh = _cell_units(candidates[stale], codes[stale], rows_nodes[stale], rows_edges[stale], edge_nodes_np,
                             split_t)  # fmt: skip
-        extra = _parent_units(state, edge_nodes_np, edge_cut, split_t, node_cut)
         rows = fresh if extra is None else {name: np.concatenate([fresh[name], extra[name]]) for name in fresh}
         rows.update(zip(_CLASSIFIED, _classify_units(tables, rows, structure.node_rest, dev, threads)))
         # the cells' units in candidate order, then the parents' (the first round: every coded cell's is new)
@@ -560,6 +578,17 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
     # one launch below 2048 units (a 10K-tet cut): waking the pool costs more than the second thread gives
     launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=1024)
     return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
+
+
+def _lacking_corners(code_ok: np.ndarray, codes: np.ndarray, nodes: np.ndarray, parents: dict | None) -> np.ndarray:
+    """The corners of the cells (``codes`` (c,), ``nodes`` (c, 4)) and progressive records (``parents``, the
+    units of :func:`_parent_units`, or None) whose codes the tables lack (``code_ok`` (64, 16)), (k,) int."""
+    lack = ((codes & 63) != 0) & ~code_ok[codes & 63, codes >> 6]  # (a cell with cut nodes only has nothing to snap)
+    corners = [nodes[lack].ravel()]
+    if parents is not None:
+        lack = ~code_ok[parents["edge_code"], parents["node_code"]]
+        corners.append(parents["corners"][lack].ravel())
+    return np.concatenate(corners).astype(np.int64)
 
 
 def _reduce(units: dict, bad: np.ndarray, split_t, edge_nodes: np.ndarray, node_cut: np.ndarray,
