@@ -517,8 +517,10 @@ class Elements:
             setattr(self, name, view)
         if ids.size:
             ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
+            # (a light kernel: split from 64K tets; a cut's few hundred in one launch, where waking the pool
+            # for a second piece took 0.3 ms against 0.05 for the whole)
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
-                   [self.dm_inv, self.volume], dev, self.threads, min_chunk=256)  # fmt: skip
+                   [self.dm_inv, self.volume], dev, self.threads, min_chunk=1 << 15)  # fmt: skip
         if touched is not None and old_n and getattr(self, "node_range", None) is not None:
             self._update_incidence(ids, touched)
         else:
