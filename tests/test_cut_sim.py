@@ -99,6 +99,37 @@ def test_scalpel_stroke_cuts_as_it_moves(mode):
     assert tm.volumes().min() > 0 and np.isclose(tm.volume(), 0.04, rtol=1e-5)
 
 
+def test_the_first_cutting_tool_warms_the_cutter_up_once_on_a_structure_of_its_own(monkeypatch, device):
+    """add_tool(cut=True) runs the cutter's path once per device (warm_up: two progressive cuts and their
+    rebuilds on its own 48-tet box); the simulation it was called on is untouched, and a second tool or a
+    second call does not run it again."""
+    import warpblob.cut._sim as cut_sim
+
+    monkeypatch.setattr(cut_sim, "_WARMED", set())
+    runs = []
+    real_cut = cut_sim.cut
+
+    def counted(structure, sweep, **kw):
+        result = real_cut(structure, sweep, **kw)
+        runs.append((structure, result))
+        return result
+
+    monkeypatch.setattr(cut_sim, "cut", counted)
+    beam = box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (10, 2, 2))
+    s = TetStructure.from_tetmesh(beam)
+    sim = wb.Simulation(s, young=1e6, poisson=0.3, density=1000.0, device=device)
+    before = (len(s.cell_nodes), len(s.node_rest), sim.tet_count, sim.node_count, sim.positions.copy())
+    path = wb.tools.Path.line((0.52, -0.3, -0.2), (0.52, 0.5, -0.2), 0.2, align=True)
+    sim.add_tool(wb.tools.Scalpel(0.6, 0.05), path, cut=True)
+    assert len(runs) == 2 and all(structure is not s for structure, _ in runs)
+    # the first cut stops inside the box (progressive records), the second continues through them
+    assert {"C", "D", "E"} & set(runs[0][1].tets_split) and runs[1][1].tets_split
+    assert (len(s.cell_nodes), len(s.node_rest), sim.tet_count, sim.node_count) == before[:4]
+    np.testing.assert_array_equal(sim.positions, before[4])
+    sim.add_tool(wb.tools.Scalpel(0.6, 0.05), path, cut=True)
+    assert len(runs) == 2 and not cut_sim.warm_up(device)
+
+
 def test_simulation_scalpel_cuts_while_stepping_and_records(tmp_path):
     beam = box_tetmesh((0, 0, 0), (1.0, 0.2, 0.2), (10, 2, 2))
     s = TetStructure.from_tetmesh(beam)

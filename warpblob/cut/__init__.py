@@ -8,7 +8,8 @@ Mor & Kanade 2000.
 from .._errors import CutError
 from ._cut import STAGES, CutResult, cut
 from ._picture import render_cut
+from ._sim import warm_up
 from ._sweep import SweepSurface
 from ._tables import CutTables, cut_tables, rank_index
 
-__all__ = ["STAGES", "CutError", "CutResult", "CutTables", "SweepSurface", "cut", "cut_tables", "rank_index", "render_cut"]
+__all__ = ["STAGES", "CutError", "CutResult", "CutTables", "SweepSurface", "cut", "cut_tables", "rank_index", "render_cut", "warm_up"]

@@ -1188,6 +1188,9 @@ class Simulation:
         fragments (measured in docs/cut.md). Each cut rebuilds the element data of the
         changed tets (:meth:`apply_cut`); pieces it severs fall on their own.
         A cutting tool does not push (give ``stiffness`` as well for contact).
+        The first cutting tool of a process (per device) runs
+        :func:`warpblob.cut.warm_up` here (0.1-0.2 s): the loads a first cut
+        would otherwise take in the frame it cuts.
 
         The contact follows the thesis' field-based model, with the field
         carried by the deformation (:mod:`warpblob.sim._contact`: sampling,
@@ -1242,12 +1245,13 @@ class Simulation:
             True
         """
         if cut:
-            from ..cut._sim import Cutter
+            from ..cut._sim import Cutter, warm_up
 
             if self._structure is None:
                 raise SimulationError("add_tool(cut=True): cutting edits the mesh; build the simulation on a "
                                       "TetStructure (wb.TetStructure.from_tetmesh(mesh))")  # fmt: skip
             cutter = Cutter(tool, path, mode=mode, snap=snap, materials=materials)
+            warm_up(self.device, self.threads)  # (the first cut's one-off loads here, not in a frame)
             self._cutters.append(cutter)
             if stiffness is None:
                 return cutter
