@@ -87,10 +87,16 @@ def warm_up(device=None, threads: int | None = None) -> bool:
     parts of numpy they call that numpy imports on first use: at 100K tets
     that first frame's cut took 38 ms against 9-12 for the next ones (2 cores).
     :meth:`warpblob.Simulation.add_tool` with ``cut=True`` calls this, so that
-    the first frame a scalpel cuts is not the one that pays (about 50 ms, at
+    the first frame a scalpel cuts is not the one that pays (0.05-0.2 s, at
     add_tool instead). It cuts a structure of its own, twice progressively in
     the rest frame as :class:`Cutter` does, and follows each cut in a
     simulation of that structure: nothing of the caller's is touched.
+
+    Example:
+        >>> import warpblob as wb
+        >>> _ = wb.cut.warm_up()  # (True the first time in a process, on this device)
+        >>> wb.cut.warm_up()
+        False
     """
     from ..mesh import TetStructure, box_tetmesh
     from ..sim import Simulation
