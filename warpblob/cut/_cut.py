@@ -390,7 +390,15 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     stored: dict = {}
     edge_cut = np.zeros(E, dtype=np.uint8)  # (written at the hit edges only, each round)
     hit_slots = _OnEdges(hits, E, -1.0)
-    look = None  # (the look-ahead's arrays, wrapped when a round first needs it)
+    look = None  # (the look-ahead's arrays, wrapped when it first runs)
+
+    def look_ahead(moved: np.ndarray) -> None:
+        nonlocal look
+        if look is None:
+            look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,
+                              edge_nodes_np, node_cut, edge_cut, dropped)  # fmt: skip
+        look.run(moved)
+
     looked = False  # (the codes were just settled by the look-ahead: classify them whatever they are)
     while True:
         keep = (node_cut[ends[:, 0]] == 0) & (node_cut[ends[:, 1]] == 0) & ~dropped
@@ -408,10 +416,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         if not looked:
             lacking = _lacking_corners(code_ok, codes[changed], rows_nodes[changed], extra)
             if lacking.size:
-                if look is None:
-                    look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,
-                                      edge_nodes_np, node_cut, edge_cut, dropped)  # fmt: skip
-                look.run(lacking)
+                look_ahead(lacking)
                 looked = True
                 continue
         looked = False
@@ -449,10 +454,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         # codes the tables lack now (mostly a progressive code with a cut node: the next tet along the blade's
         # front, which the next round would snap the same way) snap by the same rule until none is left, so
         # that the next round (which also checks every sub-tet's shape) settles more than one tet of the front
-        if look is None:
-            look = _LookAhead(state, rows_nodes, rows_edges, own_c, code_ok, hits, t_hit, hit_slots.slots,
-                              edge_nodes_np, node_cut, edge_cut, dropped)  # fmt: skip
-        look.run(moved)
+        look_ahead(moved)
     result.reductions = rounds
     cut_edges = hits[keep]
     result.edges_cut, result.nodes_cut = len(cut_edges), int(node_cut.sum())

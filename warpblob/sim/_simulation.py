@@ -1189,7 +1189,7 @@ class Simulation:
         changed tets (:meth:`apply_cut`); pieces it severs fall on their own.
         A cutting tool does not push (give ``stiffness`` as well for contact).
         The first cutting tool of a process (per device) runs
-        :func:`warpblob.cut.warm_up` here (0.1-0.2 s): the loads a first cut
+        :func:`warpblob.cut.warm_up` here (0.05-0.2 s): the loads a first cut
         would otherwise take in the frame it cuts.
 
         The contact follows the thesis' field-based model, with the field
