@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ctypes
 import os
 import time
 
@@ -11,7 +12,9 @@ import warp as wp
 from ._errors import ResourceError
 from ._parallel import launch
 
-__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "column_bounds", "rows_any", "rows_all"]
+__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "host_array", "device_array", "device_empty",
+           "head",
+           "column_bounds", "rows_any", "rows_all"]
 
 #: grid cells from which ``progress=None`` shows a bar (a job of seconds on 2 CPU cores)
 PROGRESS_CELLS = 8_000_000
@@ -150,6 +153,9 @@ def compact(flags: wp.array, device, threads=None) -> wp.array:
     return out
 
 
+#: Python's types as Warp stores them
+_PYTHON_TYPES = {float: wp.float32, int: wp.int32}
+
 #: a buffer kept between rebuilds gets this fraction more room than it needs when it is made (a cut adds tets)
 ROOM = 1 / 8
 
@@ -164,10 +170,144 @@ def room(base: wp.array | None, n: int, dtype, device) -> tuple[wp.array, wp.arr
         >>> view.shape, room(base, 8, wp.float32, "cpu")[0] is base, room(base, 9, float, "cpu")[0] is base
         ((10,), True, True)
     """
-    dtype = {float: wp.float32, int: wp.int32}.get(dtype, dtype)  # (Python's types as Warp stores them)
+    dtype = _PYTHON_TYPES.get(dtype, dtype)
     if base is None or base.dtype != dtype or base.device != wp.get_device(device) or base.shape[0] < n:
         base = wp.empty(max(1, n + int(n * ROOM)), dtype=dtype, device=device)
-    return base, base[:n]
+    return base, head(base, n)
+
+
+# Host arrays wrapped for kernels, fast. A cut's frame wraps a few hundred small numpy arrays and takes as many
+# views of kept buffers; Warp's constructor checks and derives each one's state in 8-16 us on this machine
+# (the pointer alone, through ``ndarray.ctypes``, 3 us), a fifth of a frame's host time. These helpers give an
+# object with the state Warp's own constructor gives (its attributes, compared in the tests), copied from one
+# made by Warp for the same kind of array with the fields that depend on the array set anew; a kind the fast
+# path does not cover, or one whose first array it did not reproduce exactly, goes through Warp.
+
+#: per (dtype, wrapped ndim, "wrap" | "head"): the attributes of a Warp-made array of that kind, or None (slow)
+_TEMPLATES: dict = {}
+_CPU = None
+
+
+def _address(values: np.ndarray) -> int:
+    try:  # (a writable buffer's address in 1 us; ``ndarray.ctypes.data`` takes 3)
+        return ctypes.addressof(ctypes.c_char.from_buffer(values))
+    except TypeError:
+        return values.ctypes.data
+
+
+def _fields(values: np.ndarray, dtype) -> dict | None:
+    """The array-dependent attributes of ``wp.array(values, dtype=dtype, device="cpu", copy=False)``, or
+    None where the fast path does not cover it (not C-contiguous, empty, other numpy dtype or trailing shape)."""
+    inner = getattr(dtype, "_shape_", ())
+    scalar = getattr(dtype, "_wp_scalar_type_", dtype)
+    k = len(inner)
+    try:
+        np_dtype = wp.dtype_to_numpy(scalar)
+    except TypeError:
+        return None
+    if (values.dtype != np_dtype or not values.size or not values.flags.c_contiguous or values.ndim <= k
+            or values.shape[values.ndim - k:] != tuple(inner)):  # fmt: skip
+        return None
+    shape = values.shape[: values.ndim - k]
+    size = 1
+    for n in shape:
+        size *= n
+    return {"ptr": _address(values), "shape": shape, "strides": values.strides[: values.ndim - k], "size": size,
+            "capacity": values.nbytes, "_ref": values}  # fmt: skip
+
+
+def host_array(values: np.ndarray, dtype) -> wp.array:
+    """``wp.array(values, dtype=dtype, device="cpu", copy=False)``: a Warp array over ``values``' own memory
+    (kept alive by it), the object Warp's constructor makes, made in a fraction of its time.
+
+    Example:
+        >>> a = host_array(np.arange(8, dtype=np.int32).reshape(2, 4), wp.vec4i)
+        >>> a.shape, a.numpy()[1].tolist()
+        ((2,), [4, 5, 6, 7])
+    """
+    global _CPU
+    dtype = _PYTHON_TYPES.get(dtype, dtype)
+    fields = _fields(values, dtype) if isinstance(values, np.ndarray) else None
+    if fields is not None:
+        key = (dtype, len(fields["shape"]), "wrap")
+        template = _TEMPLATES.get(key, False)
+        if template:
+            out = wp.array.__new__(wp.array)
+            out.__dict__ = {**template, **fields}
+            return out
+        if template is False:  # the first of its kind: Warp makes it, and the fast path is checked against it
+            _CPU = _CPU or wp.get_device("cpu")
+            made = wp.array(values, dtype=dtype, device=_CPU, copy=False)
+            state = dict(vars(made))
+            _TEMPLATES[key] = {**state, "_ref": None} if {**state, **fields} == state else None
+            return made
+    return wp.array(values, dtype=dtype, device="cpu", copy=False)
+
+
+def device_array(values, dtype, device, copy: bool = True) -> wp.array:
+    """``wp.array(values, dtype=dtype, device=device, copy=copy)``; on the CPU a (copied where ``copy``)
+    numpy array of the dtype's scalars wrapped by :func:`host_array`.
+
+    Example:
+        >>> device_array([1, 2, 3], wp.int32, "cpu").numpy().tolist()
+        [1, 2, 3]
+    """
+    if (device == "cpu") if isinstance(device, str) else device.is_cpu:
+        dtype = _PYTHON_TYPES.get(dtype, dtype)
+        scalar = getattr(dtype, "_wp_scalar_type_", dtype)
+        try:
+            np_dtype = wp.dtype_to_numpy(scalar)
+        except TypeError:
+            np_dtype = None
+        if copy and np_dtype is not None:
+            return host_array(np.array(values, dtype=np_dtype, order="C"), dtype)
+        if isinstance(values, np.ndarray) and values.dtype == np_dtype and values.flags.c_contiguous:
+            return host_array(values, dtype)  # (shared, as Warp shares it)
+    return wp.array(values, dtype=dtype, device=device, copy=copy)
+
+
+def device_empty(n: int, dtype, device, zero: bool = False) -> wp.array:
+    """``wp.empty(n, dtype=dtype, device=device)`` (``wp.zeros`` with ``zero``); on the CPU a numpy array's
+    memory wrapped by :func:`host_array`.
+
+    Example:
+        >>> device_empty(3, wp.vec3, "cpu", zero=True).numpy().tolist()
+        [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    """
+    if n > 0 and ((device == "cpu") if isinstance(device, str) else device.is_cpu):
+        dtype = _PYTHON_TYPES.get(dtype, dtype)
+        try:
+            np_dtype = wp.dtype_to_numpy(getattr(dtype, "_wp_scalar_type_", dtype))
+        except TypeError:
+            np_dtype = None
+        if np_dtype is not None:
+            shape = (int(n), *getattr(dtype, "_shape_", ()))
+            return host_array((np.zeros if zero else np.empty)(shape, np_dtype), dtype)
+    return (wp.zeros if zero else wp.empty)(n, dtype=dtype, device=device)
+
+
+def head(base: wp.array, n: int) -> wp.array:
+    """``base[:n]`` of a 1-D contiguous CPU array (Warp's slice, made in a fraction of its time); any other
+    array is sliced by Warp.
+
+    Example:
+        >>> head(wp.zeros(10, dtype=wp.float32, device="cpu"), 3).shape
+        (3,)
+    """
+    if base.ndim != 1 or not base.device.is_cpu or not base.is_contiguous or not 0 < n <= base.shape[0]:
+        return base[:n]
+    key = (base.dtype, 1, "head")
+    fields = {"ptr": base.ptr, "shape": (n,), "size": n, "capacity": n * base.strides[0], "_ref": base}
+    template = _TEMPLATES.get(key, False)
+    if template:
+        out = wp.array.__new__(wp.array)
+        out.__dict__ = {**template, **fields}
+        return out
+    made = base[:n]
+    if template is False:
+        state = dict(vars(made))
+        _TEMPLATES[key] = {**state, "_ref": None} if {**state, **fields} == state else None
+    return made
 
 
 def column_bounds(points) -> tuple:

@@ -79,7 +79,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import CutError
 from .._parallel import launch
-from .._stages import column_bounds, compact, rows_all, rows_any
+from .._stages import column_bounds, compact, device_array, device_empty, host_array, rows_all, rows_any
 from ..mesh._structure import NODE_ORIGINS, TetStructure, _shared, _unique_first, union_find_kernel, vec6i
 from ..mesh._tetmesh import TET_EDGES, TET_FACES
 from . import _kernels as k
@@ -178,9 +178,9 @@ def _boxes(sweep: SweepSurface, device) -> tuple[tuple[wp.array, wp.array], wp.a
     low, high = column_bounds(tri.reshape(-1, 3))
     pad = 1e-6 * max(float(np.linalg.norm(high - low)), 1e-12)
     # (elementwise over the three corners: numpy's reduction along that short axis is several times slower)
-    lowers = wp.array(np.minimum(np.minimum(tri[:, 0], tri[:, 1]), tri[:, 2]) - pad, dtype=wp.vec3, device=device)
-    uppers = wp.array(np.maximum(np.maximum(tri[:, 0], tri[:, 1]), tri[:, 2]) + pad, dtype=wp.vec3, device=device)
-    corners = wp.array(tri.reshape(-1, 3).astype(np.float32), dtype=wp.vec3, device=device)
+    lowers = device_array(np.minimum(np.minimum(tri[:, 0], tri[:, 1]), tri[:, 2]) - pad, wp.vec3, device)
+    uppers = device_array(np.maximum(np.maximum(tri[:, 0], tri[:, 1]), tri[:, 2]) + pad, wp.vec3, device)
+    corners = device_array(tri.reshape(-1, 3).astype(np.float32), wp.vec3, device)
     return (lowers, uppers), corners
 
 
@@ -191,7 +191,7 @@ def _planes(sweep: SweepSurface, device) -> tuple[wp.array, wp.array]:
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     normals = np.cross(e1, e2).astype(np.float32)
     slack = (1e-4 * np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)).astype(np.float32)
-    return wp.array(normals, dtype=wp.vec3, device=device), wp.array(slack, dtype=float, device=device)
+    return device_array(normals, wp.vec3, device), device_array(slack, float, device)
 
 
 def _compact(flags: wp.array, device, threads) -> np.ndarray:
@@ -318,16 +318,16 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
         if selected is None and structure._edges_used:  # every edge slot is a live cell's (fresh or compacted)
             edge_ok = wp.full(E, 1, dtype=wp.uint8, device=dev)
         else:
-            edge_ok = wp.zeros(E, dtype=wp.uint8, device=dev)
+            edge_ok = device_empty(E, wp.uint8, dev, zero=True)
             launch(k.mark_edges_in_use_kernel, C, [cell_edges_wp, cell_alive_wp], [edge_ok], dev, threads,
                    min_chunk=_CHEAP)  # fmt: skip
         if node_limit is not None:
             old = np.maximum(edge_nodes_np[:, 0], edge_nodes_np[:, 1]) < int(node_limit)  # (not .max(axis=1): 10x slower)
             edge_ok.assign(edge_ok.numpy() & old.view(np.uint8))
     T = len(tested) if tested is not None else E
-    hit_t = wp.empty(T, dtype=float, device=dev)
-    hit_tri = wp.empty(T, dtype=wp.int32, device=dev)
-    flags = wp.empty(T, dtype=wp.int32, device=dev)
+    hit_t = device_empty(T, float, dev)
+    hit_tri = device_empty(T, wp.int32, dev)
+    flags = device_empty(T, wp.int32, dev)
     if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
         launch(k.intersect_edges_few_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners,
                *_planes(sweep, dev)], [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
@@ -372,7 +372,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     if near is not None:
         candidates = near[rows_any(at_hit[cell_nodes_np[near]])].astype(np.int32)
     else:
-        flags_c = wp.empty(C, dtype=wp.int32, device=dev)
+        flags_c = device_empty(C, wp.int32, dev)
         launch(k.cells_at_nodes_kernel, C, [arrays["cell_nodes"], arrays["cell_alive"],
                _shared(at_hit, wp.uint8, dev)], [flags_c], dev, threads, min_chunk=_CHEAP)  # fmt: skip
         candidates = _compact(flags_c, dev, threads)
@@ -380,7 +380,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     # arrays each round would miss the cache on every one)
     rows_nodes, rows_edges = cell_nodes_np[candidates], cell_edges_np[candidates]
     candidate_rows = [_shared(rows_nodes, wp.vec4i, dev), _shared(rows_edges, vec6i, dev)]
-    code_wp = wp.empty(len(candidates), dtype=wp.int32, device=dev)
+    code_wp = device_empty(len(candidates), wp.int32, dev)
     # a cell's unit and its table entry depend on its code only (its corners, edges and their split points are
     # fixed within a cut): a round re-classifies the cells whose code changed, and the progressive parents
     M = len(candidates)
@@ -550,7 +550,7 @@ def _table_arrays(tables, dev) -> dict:
             "entry": tables.entry.astype(np.int32).ravel(), "count": tables.count.astype(np.int32).ravel(),
             "refs": tables.refs.astype(np.int32).ravel(), "kind": kind, "rank": _RANK_LOOKUP.astype(np.int32),
         }  # fmt: skip
-        arrays = {name: wp.array(v, dtype=wp.int32, device=dev) for name, v in flat.items()}
+        arrays = {name: device_array(v, wp.int32, dev) for name, v in flat.items()}
         arrays["kind_np"] = kind
         # per (edge code, node code) in a tet's own corner order: the tables split it (the same for every
         # order of the corners; the progressive code with a cut node counts as lacking)
@@ -573,10 +573,10 @@ def _classify_units(tables, units, rest, dev, threads) -> tuple:
         _shared(np.asarray(rest), wp.vec3, dev),
         ta["entry"], ta["count"], ta["refs"], ta["kind"], ta["rank"], _KIND_NAMES.index("Xp"),
     ]  # fmt: skip
-    entry = wp.empty(n, dtype=wp.int32, device=dev)
-    perm = wp.empty(n, dtype=wp.int32, device=dev)
-    volume = wp.empty(n, dtype=wp.float64, device=dev)
-    bad = wp.empty(n, dtype=wp.int32, device=dev)
+    entry = device_empty(n, wp.int32, dev)
+    perm = device_empty(n, wp.int32, dev)
+    volume = device_empty(n, wp.float64, dev)
+    bad = device_empty(n, wp.int32, dev)
     # one launch below 2048 units (a 10K-tet cut): waking the pool costs more than the second thread gives
     launch(k.classify_units_kernel, n, inputs, [entry, perm, volume, bad], dev, threads, min_chunk=1024)
     return entry.numpy().astype(np.int64), perm.numpy(), volume.numpy(), bad.numpy() != 0
@@ -783,8 +783,8 @@ class _LookAhead:
         self.edited = [_shared(node_cut, wp.uint8, cpu), _shared(edge_cut, wp.uint8, cpu),
                        _shared(dropped.view(np.uint8), wp.uint8, cpu),
                        _shared(state.is_protected.view(np.uint8), wp.uint8, cpu)]  # fmt: skip
-        self.chosen = wp.empty(max(M + A, 1), dtype=wp.int32, device=cpu)
-        self.stuck = wp.empty(max(4 * A, 1), dtype=wp.int32, device=cpu)
+        self.chosen = device_empty(max(M + A, 1), wp.int32, cpu)
+        self.stuck = device_empty(max(4 * A, 1), wp.int32, cpu)
 
     def run(self, moved: np.ndarray) -> None:
         """The look-ahead from the nodes ``moved`` (int) a round changed."""
@@ -923,8 +923,7 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
         pos[cut_edges] = np.arange(len(cut_edges), dtype=np.int32)
         out = np.empty(12 * n, dtype=np.int32)
         launch(k.unit_splits_kernel, n,
-               [cn_wp, wp.array(np.ascontiguousarray(units["new_edges"], dtype=np.int32).ravel(), dtype=wp.int32,
-                                device=dev),
+               [cn_wp, device_array(np.ascontiguousarray(units["new_edges"], dtype=np.int32).ravel(), wp.int32, dev),
                 _shared(np.ascontiguousarray(split_of, dtype=np.int32).ravel(), wp.int32, dev),
                 _shared(edge_nodes, wp.vec2i, dev), _shared(pos, wp.int32, dev), int(ids0[0]), len(cut_edges)],
                [_out(out, wp.int32, dev)], dev, threads, min_chunk=4096)  # fmt: skip
@@ -1050,8 +1049,8 @@ def _subdivide(structure, tables, state, units, entry, perm, cut_edges, split_t,
 def _out(values: np.ndarray, dtype, device) -> wp.array:
     """A kernel output array: ``values``' own memory on the CPU, a device array elsewhere (read back by _back)."""
     if device.is_cuda:
-        return wp.empty(len(values), dtype=dtype, device=device)
-    return wp.array(values, dtype=dtype, device=device, copy=False)
+        return device_empty(len(values), dtype, device)
+    return host_array(values, dtype)
 
 
 def _back(arr: wp.array | np.ndarray, device) -> np.ndarray:
@@ -1096,11 +1095,11 @@ def _cut_node_copies(structure, cn, node_rows, unit_of, refs, ids, new: _NewNode
     # pair equal faces, join copies off the sweep (one thread)
     size = 1 << max(4, int(8 * R - 1).bit_length())
     parent = _shared(np.arange(n * 8, dtype=np.int32), wp.int32, cpu)
-    sweep_pairs = wp.empty(4 * R, dtype=wp.vec2i, device=cpu)
-    sweep_count = wp.zeros(1, dtype=wp.int32, device=cpu)
+    sweep_pairs = device_empty(4 * R, wp.vec2i, cpu)
+    sweep_count = device_empty(1, wp.int32, cpu, zero=True)
     wp.launch(k.pair_faces_kernel, dim=1, device=cpu,
               inputs=[outs[1], outs[2], outs[3], wp.full(size, -1, dtype=wp.int64, device=cpu),
-                      wp.empty(size, dtype=wp.int32, device=cpu), parent, sweep_pairs, sweep_count])  # fmt: skip
+                      device_empty(size, wp.int32, cpu), parent, sweep_pairs, sweep_count])  # fmt: skip
     ns = int(sweep_count.numpy()[0])
     a = b = np.zeros(0, np.int32)
     if ns:

@@ -55,7 +55,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import WarpblobError
 from .._parallel import launch, submit, thread_count
-from .._stages import mark_heads_kernel, rows_all, rows_any
+from .._stages import device_empty, host_array, mark_heads_kernel, rows_all, rows_any
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
@@ -766,9 +766,9 @@ def find_edges_kernel(
 
 def _group_sorted(keys: wp.array, count: int, device, threads) -> tuple[wp.array, int]:
     """Inclusive scan of run heads over ``count`` sorted keys (``i`` is in run ``groups[i] - 1``); number of runs."""
-    heads = wp.empty(count, dtype=wp.int32, device=device)
+    heads = device_empty(count, wp.int32, device)
     launch(mark_heads_kernel, count, [keys], [heads], device, threads)
-    groups = wp.empty(count, dtype=wp.int32, device=device)
+    groups = device_empty(count, wp.int32, device)
     if count == 0:
         return groups, 0
     wp.utils.array_scan(heads, groups, inclusive=True)
@@ -795,16 +795,16 @@ def csr(rows: wp.array, cols: wp.array, count: int, row_count: int, device, thre
     if not wp.get_device(device).is_cuda:
         if count == 0:
             return np.zeros(row_count + 1, dtype=np.int32), np.zeros(0, dtype=np.int32)
-        start = wp.zeros(row_count + 2, dtype=wp.int32, device=device)
-        order = wp.empty(count, dtype=wp.int32, device=device) if order is None else order[:count]
+        start = device_empty(row_count + 2, wp.int32, device, zero=True)
+        order = device_empty(count, wp.int32, device) if order is None else order[:count]
         wp.launch(counting_sort_kernel, 1, inputs=[rows[:count], start, order], device=device)
         off = start.numpy()[: row_count + 1]
         order = order.numpy()[: off[-1]]
         return off, order if cols is None else cols.numpy()[:count][order]
     if cols is None:
-        cols = wp.empty(2 * count, dtype=wp.int32, device=device)
+        cols = device_empty(2 * count, wp.int32, device)
         wp.copy(cols, wp.array(np.arange(count, dtype=np.int32), dtype=wp.int32, device=device), count=count)
-    offsets = wp.empty(row_count + 1, dtype=wp.int32, device=device)
+    offsets = device_empty(row_count + 1, wp.int32, device)
     wp.utils.radix_sort_pairs(rows, cols, count)
     launch(lower_bound_kernel, row_count + 1, [rows, count], [offsets], device, threads)
     off = offsets.numpy()
@@ -919,8 +919,8 @@ def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> n
     b = np.ascontiguousarray(b, dtype=np.int32)
     if len(a):
         wp.launch(union_find_kernel, dim=1, device="cpu",
-                  inputs=[wp.array(a, dtype=wp.int32, device="cpu", copy=False),
-                          wp.array(b, dtype=wp.int32, device="cpu", copy=False), len(a), parent])  # fmt: skip
+                  inputs=[host_array(a, wp.int32),
+                          host_array(b, wp.int32), len(a), parent])  # fmt: skip
     roots = parent.numpy()
     alive = np.asarray(alive, dtype=bool)
     is_root = (roots == np.arange(count)) & alive
@@ -953,6 +953,8 @@ def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
 def _shared(values: np.ndarray, dtype=wp.int32, device="cpu") -> wp.array:
     """``values`` as a Warp array: its own memory on the CPU (no copy), a copy on CUDA."""
     values = np.ascontiguousarray(values)
+    if (device == "cpu") if isinstance(device, str) else device.is_cpu:
+        return host_array(values, dtype)
     return wp.array(values, dtype=dtype, device=device, copy=wp.get_device(device).is_cuda)
 
 
@@ -983,10 +985,10 @@ class _RestCellGrid:
         self.lower = np.empty((self.cells, 3), np.float32)
         self.upper = np.empty((self.cells, 3), np.float32)
         launch(rest_boxes_kernel, self.cells,
-               [wp.array(np.ascontiguousarray(rest, dtype=np.float32), dtype=wp.vec3, device=cpu, copy=False),
-                wp.array(np.ascontiguousarray(cell_nodes, dtype=np.int32), dtype=wp.vec4i, device=cpu, copy=False)],
-               [wp.array(self.lower, dtype=wp.vec3, device=cpu, copy=False),
-                wp.array(self.upper, dtype=wp.vec3, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
+               [host_array(np.ascontiguousarray(rest, dtype=np.float32), wp.vec3),
+                host_array(np.ascontiguousarray(cell_nodes, dtype=np.int32), wp.vec4i)],
+               [host_array(self.lower, wp.vec3),
+                host_array(self.upper, wp.vec3)], cpu, min_chunk=_CHEAP)  # fmt: skip
         if self.cells == 0:
             self.origin, self.spacing, self.dims = np.zeros(3), 1.0, np.ones(3, np.int64)
             self.order, self.start = np.zeros(0, np.int64), np.zeros(2, np.int64)
@@ -1006,7 +1008,7 @@ class _RestCellGrid:
         # (the grid has about as many buckets as cells at most: a bucket's side is the largest cell's)
         keys = wp.empty(self.cells, dtype=wp.int32, device=cpu)
         launch(bucket_keys_kernel, self.cells,
-               [wp.array(self.lower, dtype=wp.vec3, device=cpu, copy=False), wp.vec3(*self.origin.tolist()),
+               [host_array(self.lower, wp.vec3), wp.vec3(*self.origin.tolist()),
                 float(self.spacing), wp.vec3i(*self.dims.tolist())], [keys], cpu, min_chunk=_CHEAP)  # fmt: skip
         start = wp.zeros(int(np.prod(self.dims)) + 1, dtype=wp.int32, device=cpu)
         order = wp.empty(self.cells, dtype=wp.int32, device=cpu)
@@ -1608,7 +1610,7 @@ class TetStructure:
 
         pairs = np.ascontiguousarray(pairs, dtype=np.int32).reshape(-1, 2)
         dev = resolve_device(device)
-        found = wp.empty(len(pairs), dtype=wp.int32, device=dev)
+        found = device_empty(len(pairs), wp.int32, dev)
         copy = dev.is_cuda  # on the CPU the kernel reads the table's own memory
         inputs = [
             wp.array(self._table_keys, dtype=wp.int64, device=dev, copy=copy),
@@ -2007,15 +2009,15 @@ class TetStructure:
         new_keys = np.empty(4 * C, dtype=np.int64)
         found = np.empty(6 * C, dtype=np.int32)
         edge_keys = np.empty(6 * C, dtype=np.int64)
-        new_wp = wp.array(new, dtype=wp.vec4i, device=cpu, copy=False)
-        table = [wp.array(self._table_keys, dtype=wp.int64, device=cpu, copy=False),
-                 wp.array(self._table_values, dtype=wp.int32, device=cpu, copy=False), self._table_bits,
+        new_wp = host_array(new, wp.vec4i)
+        table = [host_array(self._table_keys, wp.int64),
+                 host_array(self._table_values, wp.int32), self._table_bits,
                  self._table_node_bound]  # fmt: skip
         # one launch below 4096 new cells (a 10K-tet cut): waking the pool costs more than the second thread gives
         launch(new_cells_kernel, C,
-               [new_wp, wp.array(st["node"]["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+               [new_wp, host_array(st["node"]["alive"].view(np.uint8), wp.uint8),
                 wp.int64(key_base), *table],
-               [wp.array(a, dtype=t, device=cpu, copy=False) for a, t in
+               [host_array(a, t) for a, t in
                 ((bad, wp.int32), (new_keys, wp.int64), (found, wp.int32), (edge_keys, wp.int64))], cpu,
                min_chunk=2048)  # fmt: skip
         if C and bad.any():
@@ -2051,7 +2053,7 @@ class TetStructure:
             old_keys = np.empty(len(old_faces), dtype=np.int64)
             launch(triple_keys_kernel, len(old_faces),
                    [_shared(faces["nodes"][old_faces], wp.vec3i),
-                    wp.int64(key_base)], [wp.array(old_keys, dtype=wp.int64, device=cpu, copy=False)], cpu,
+                    wp.int64(key_base)], [host_array(old_keys, wp.int64)], cpu,
                    min_chunk=_CHEAP)  # fmt: skip
             keys = np.concatenate([old_keys, new_keys])
         else:
@@ -2084,7 +2086,7 @@ class TetStructure:
             pairs = np.empty((len(first), 2), dtype=np.int32)
             launch(edge_pairs_kernel, len(first),
                    [new_wp, _shared(missing[first].astype(np.int32))],
-                   [wp.array(pairs, dtype=wp.vec2i, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
+                   [host_array(pairs, wp.vec2i)], cpu, min_chunk=_CHEAP)  # fmt: skip
             edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs)
             found[missing] = edge_ids[mk_inv]
             self._table_add(edge_ids)
@@ -2095,18 +2097,18 @@ class TetStructure:
         first_use = np.full(len(uniq), np.iinfo(np.int32).max, dtype=np.int32)
         if C:
             wp.launch(first_use_kernel, dim=4 * C, device=cpu,
-                      inputs=[wp.array(inv_new, dtype=wp.int32, device=cpu, copy=False),
-                              wp.array(first_use, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
+                      inputs=[host_array(inv_new, wp.int32),
+                              host_array(first_use, wp.int32)])  # fmt: skip
         create = np.flatnonzero(face_of < 0)
         if create.size:
             use = np.ascontiguousarray(first_use[create])  # index into the (C, 4) faces of the new cells
             fn = np.empty((len(use), 3), dtype=np.int32)
             fe = np.empty((len(use), 3), dtype=np.int32)
             launch(new_faces_kernel, len(use),
-                   [new_wp, wp.array(cell_edges, dtype=vec6i, device=cpu, copy=False),
-                    wp.array(use, dtype=wp.int32, device=cpu, copy=False)],
-                   [wp.array(fn, dtype=wp.vec3i, device=cpu, copy=False),
-                    wp.array(fe, dtype=wp.vec3i, device=cpu, copy=False)], cpu, min_chunk=_CHEAP)  # fmt: skip
+                   [new_wp, host_array(cell_edges, vec6i),
+                    host_array(use, wp.int32)],
+                   [host_array(fn, wp.vec3i),
+                    host_array(fe, wp.vec3i)], cpu, min_chunk=_CHEAP)  # fmt: skip
             face_ids = faces.extend(len(create), nodes=fn, edges=fe)
             face_of[create] = face_ids
             self._emit("face", "insert", face_ids)
@@ -2121,11 +2123,11 @@ class TetStructure:
         if C:
             face_cells = faces.arrays["cells"]  # the extend above may have grown it
             launch(link_new_cells_kernel, 4 * C,
-                   [wp.array(cell_faces, dtype=wp.int32, device=cpu, copy=False),
-                    wp.array(inv_new, dtype=wp.int32, device=cpu, copy=False),
-                    wp.array(first_use, dtype=wp.int32, device=cpu, copy=False),
-                    wp.array(taken, dtype=wp.int32, device=cpu, copy=False), int(cell_ids[0])],
-                   [wp.array(face_cells.reshape(-1), dtype=wp.int32, device=cpu, copy=False)], cpu,
+                   [host_array(cell_faces, wp.int32),
+                    host_array(inv_new, wp.int32),
+                    host_array(first_use, wp.int32),
+                    host_array(taken, wp.int32), int(cell_ids[0])],
+                   [host_array(face_cells.reshape(-1), wp.int32)], cpu,
                    min_chunk=_CHEAP)  # fmt: skip
             self._emit("cell", "insert", cell_ids)
         self._links_dirty = True
@@ -2166,9 +2168,9 @@ class TetStructure:
             self._table_node_bound = max(self._table_node_bound, top)
         # the kernel writes the table's own memory (no copy either way)
         cpu = wp.get_device("cpu")
-        keys = wp.array(self._table_keys, dtype=wp.int64, device=cpu, copy=False)
-        values = wp.array(self._table_values, dtype=wp.int32, device=cpu, copy=False)
-        nodes = wp.array(self._stores["edge"]["nodes"], dtype=wp.vec2i, device=cpu, copy=False)
+        keys = host_array(self._table_keys, wp.int64)
+        values = host_array(self._table_values, wp.int32)
+        nodes = host_array(self._stores["edge"]["nodes"], wp.vec2i)
         _insert_edges(nodes, np.asarray(edge_ids, dtype=np.int32), self._table_bits, keys, values, cpu)
         self._table_used += len(edge_ids)
 
@@ -2281,14 +2283,14 @@ class TetStructure:
         roots = np.empty(count, dtype=np.int32)
         out = np.zeros(3, dtype=np.int32)
         wp.launch(flood_pieces_kernel, dim=1, device=cpu, inputs=[
-            wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False),
-            wp.array(cells["faces"], dtype=wp.vec4i, device=cpu, copy=False),
-            wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+            host_array(faces["cells"], wp.vec2i),
+            host_array(cells["faces"], wp.vec4i),
+            host_array(cells["alive"].view(np.uint8), wp.uint8),
             wp.array(np.ascontiguousarray(seeds, dtype=np.int32), dtype=wp.int32, device=cpu), budget,
-            wp.array(mark, dtype=wp.int32, device=cpu, copy=False),
-            wp.array(queue, dtype=wp.int32, device=cpu, copy=False),
-            wp.array(roots, dtype=wp.int32, device=cpu, copy=False), wp.empty(count, dtype=wp.int32, device=cpu),
-            wp.array(out, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
+            host_array(mark, wp.int32),
+            host_array(queue, wp.int32),
+            host_array(roots, wp.int32), device_empty(count, wp.int32, cpu),
+            host_array(out, wp.int32)])  # fmt: skip
         mark[queue[: out[2]]] = -1  # back to unmarked for the next flood
         return bool(out[0]), int(out[1]), roots
 
@@ -2324,18 +2326,18 @@ class TetStructure:
         # the kernels read the structure's own memory: a union-find per range of cells (side by side), the
         # faces between ranges in one thread, then the pieces counted per range or numbered in one thread
         # (near-linear, exact: the same pieces and numbering for any number of ranges)
-        face_cells = wp.array(faces["cells"], dtype=wp.vec2i, device=cpu, copy=False)
-        alive = wp.array(cells["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False)
-        parent = wp.empty(C, dtype=wp.int32, device=cpu)
-        cross = wp.empty(len(faces["cells"]), dtype=wp.int32, device=cpu)
+        face_cells = host_array(faces["cells"], wp.vec2i)
+        alive = host_array(cells["alive"].view(np.uint8), wp.uint8)
+        parent = device_empty(C, wp.int32, cpu)
+        cross = device_empty(len(faces["cells"]), wp.int32, cpu)
         ranges = max(1, min(thread_count(), C // _COMPONENT_RANGE))
-        counts = wp.empty(ranges, dtype=wp.int32, device=cpu)
+        counts = device_empty(ranges, wp.int32, cpu)
         launch(components_ranges_kernel, ranges,
-               [face_cells, wp.array(faces["alive"].view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
+               [face_cells, host_array(faces["alive"].view(np.uint8), wp.uint8),
                 ranges], [parent, cross, counts], cpu, min_chunk=1)  # fmt: skip
         wp.launch(components_cross_kernel, dim=1, device=cpu, inputs=[
-            face_cells, cross, counts, alive, parent, wp.array(dense, dtype=wp.int32, device=cpu, copy=False),
-            wp.array(labels, dtype=wp.int32, device=cpu, copy=False)])  # fmt: skip
+            face_cells, cross, counts, alive, parent, host_array(dense, wp.int32),
+            host_array(labels, wp.int32)])  # fmt: skip
         if label:
             return labels, int(dense[-1]) + 1
         launch(live_roots_kernel, ranges, [parent, alive, ranges], [counts], cpu, min_chunk=1)

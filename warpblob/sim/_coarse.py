@@ -85,7 +85,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from .._stages import ROOM, column_bounds, room
+from .._stages import ROOM, column_bounds, device_array, device_empty, room
 from ..mesh._structure import _connected, _unique_inverse
 from . import _kernels as k
 
@@ -190,9 +190,9 @@ def factor(A: np.ndarray, first: np.ndarray, device) -> tuple[np.ndarray, np.nda
     s = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 0.0)
     scaled = s[:, None] * (0.5 * (A + A.T)) * s[None, :]
     scaled[np.diag_indices_from(scaled)] = np.where(d > 0, 1.0, 0.0) + SHIFT
-    a = wp.array(scaled, dtype=wp.float64, device=device)
+    a = device_array(scaled, wp.float64, device)
     lower = wp.zeros((n, n), dtype=wp.float64, device=device)
-    wp.launch(k.cholesky_kernel, 1, inputs=[a, wp.array(first, dtype=wp.int32, device=device), wp.float64(0.5 * SHIFT),
+    wp.launch(k.cholesky_kernel, 1, inputs=[a, device_array(first, wp.int32, device), wp.float64(0.5 * SHIFT),
                                             0, lower], device=device)  # fmt: skip
     # host sync: the factor comes back, to be stored in float32
     return lower.numpy(), s
@@ -257,8 +257,8 @@ class CoarseSpace:
         # numbered by the aggregates' order of first appearance among the corners; slots grouped by pair
         # (kernels: a tet's groups are its corners' aggregates numbered by first appearance)
         tets_wp, alive_wp = e.tets, e.alive
-        aggregate_wp = wp.array(node_aggregate, dtype=wp.int32, device=dev)
-        squares = wp.empty(T, dtype=wp.int32, device=dev)
+        aggregate_wp = device_array(node_aggregate, wp.int32, dev)
+        squares = device_empty(T, wp.int32, dev)
         launch(k.tet_aggregate_counts_kernel, T, [tets_wp, alive_wp, aggregate_wp], [squares], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
         # (in a host buffer with room: a followed space appends its added tets' starts in place)
@@ -267,7 +267,7 @@ class CoarseSpace:
         slot_code = np.empty(int(start[-1]), dtype=np.int64)
         start_wp = self._array(start, wp.int64)
         launch(k.tet_pair_slots_kernel, T, [tets_wp, alive_wp, aggregate_wp, start_wp, int(G)],
-               [wp.array(slot_code, dtype=wp.int64, device=dev, copy=False)], dev, threads,
+               [device_array(slot_code, wp.int64, dev, copy=False)], dev, threads,
                min_chunk=COUPLE_GRAIN * 16)  # fmt: skip
         pairs, pair_of_slot = _unique_inverse(slot_code)  # (np.unique's; codes below G^2: by marks)
         pair_offsets = np.zeros(len(pairs) + 1, dtype=np.int64)
@@ -294,7 +294,7 @@ class CoarseSpace:
     def _array(self, a: np.ndarray, dtype=wp.int32) -> wp.array:
         # (on the CPU these fresh host arrays are used in place, not copied)
         dev = self.elements.device
-        return wp.array(np.ascontiguousarray(a), dtype=dtype, device=dev, copy=dev.is_cuda)
+        return device_array(np.ascontiguousarray(a), dtype, dev, copy=dev.is_cuda)
 
     def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots,
                    kept: dict, order: np.ndarray | None = None) -> None:  # fmt: skip
@@ -370,7 +370,7 @@ class CoarseSpace:
         node_aggregate = np.concatenate([host["aggregate"], host["aggregate"][sources]])
         node_aggregate[e.mass.numpy() <= 0] = -1
         alive_wp = e.alive
-        aggregate_wp = wp.array(node_aggregate, dtype=wp.int32, device=dev)
+        aggregate_wp = device_array(node_aggregate, wp.int32, dev)
         added = T - old_t
         # the old tets' slot starts stay where they are (the host buffer's room), the added ones' follow
         start = host["start"]
@@ -380,7 +380,7 @@ class CoarseSpace:
         pairs, pair_offsets, pair_slots = host["pairs"], host["pair_offsets"], host["pair_slots"]
         if added:
             # the added tets' slots (one launch each over them alone: a cut adds a few thousand)
-            squares = wp.empty(T, dtype=wp.int32, device=dev)
+            squares = device_empty(T, wp.int32, dev)
             wp.launch(k.tet_aggregate_counts_kernel, added, inputs=[e.tets, alive_wp, aggregate_wp, old_t, squares],
                       device=dev)  # fmt: skip
             np.cumsum(squares.numpy()[old_t:], out=start[old_t + 1 :])
@@ -388,7 +388,7 @@ class CoarseSpace:
         start_wp = c_start = self._array(start, wp.int64)
         first_new, total = int(start[old_t]), int(start[-1])
         if total > first_new:
-            codes = wp.empty(total, dtype=wp.int64, device=dev)
+            codes = device_empty(total, wp.int64, dev)
             wp.launch(k.tet_pair_slots_kernel, added, inputs=[e.tets, alive_wp, aggregate_wp, start_wp, int(G), old_t,
                                                               codes], device=dev)  # fmt: skip
             code = codes.numpy()[first_new:]

@@ -20,7 +20,7 @@ import warp as wp
 
 from .._errors import SimulationError
 from .._parallel import launch
-from .._stages import ROOM, room, rows_any
+from .._stages import ROOM, device_array, device_empty, host_array, room, rows_any
 from ..mesh._structure import csr
 from . import _kernels as k
 
@@ -127,12 +127,12 @@ def check_tets(rest: np.ndarray, tets: np.ndarray, alive: np.ndarray, ids: np.nd
     volume = np.empty(len(ids), dtype=np.float64)
     longest = np.empty(len(ids), dtype=np.float64)
     launch(k.check_tets_kernel, len(ids),
-           [wp.array(np.asarray(rest, dtype=np.float64).reshape(-1, 3), dtype=wp.vec3d, device=cpu, copy=False),
-            wp.array(rows.astype(np.int32), dtype=wp.vec4i, device=cpu, copy=False),
-            wp.array(live.view(np.uint8), dtype=wp.uint8, device=cpu, copy=False),
-            wp.array(np.arange(len(ids), dtype=np.int32), dtype=wp.int32, device=cpu, copy=False),
+           [host_array(np.asarray(rest, dtype=np.float64).reshape(-1, 3), wp.vec3d),
+            host_array(rows.astype(np.int32), wp.vec4i),
+            host_array(live.view(np.uint8), wp.uint8),
+            host_array(np.arange(len(ids), dtype=np.int32), wp.int32),
             wp.float64(DEGENERATE_VOLUME)],
-           [wp.array(a, dtype=d, device=cpu, copy=False) for a, d in
+           [host_array(a, d) for a, d in
             ((code, wp.int32), (volume, wp.float64), (longest, wp.float64))], cpu, threads,
            min_chunk=8192)  # fmt: skip
     if not code.any():
@@ -366,10 +366,10 @@ class Elements:
         corner_nodes[:] = self.tets_host
         corner_nodes[~self.alive_host] = N
         if not cpu:
-            rows_wp = wp.array(rows, dtype=wp.int32, device=dev)
+            rows_wp = device_array(rows, wp.int32, dev)
         offsets, corners = csr(rows_wp, None, count, N, dev, self.threads, lists if cpu else None)
         if not cpu:
-            wp.copy(lists, wp.array(corners, dtype=wp.int32, device=dev), count=len(corners))
+            wp.copy(lists, device_array(corners, wp.int32, dev), count=len(corners))
         self.node_corners = lists
         self._tail = int(offsets[-1])
         self._range_host = self._grown("_range_host", N, 0)
@@ -381,7 +381,7 @@ class Elements:
     def _bind_range(self) -> None:
         """:attr:`node_range` on the device from the host's ranges (on the CPU the host array itself)."""
         cuda = wp.get_device(self.device).is_cuda
-        self.node_range = wp.array(self._range_host, dtype=wp.vec2i, device=self.device, copy=cuda)
+        self.node_range = device_array(self._range_host, wp.vec2i, self.device, copy=cuda)
 
     def incidence(self) -> tuple[np.ndarray, np.ndarray]:
         """The incidence as packed CSR on the host: ``(offsets (N + 1,) int32, corners (4 T_live,) int32)``;
@@ -423,10 +423,10 @@ class Elements:
         nodes, cols = nodes[order], cols[order].astype(np.int32)
         # every changed tet's corner is a touched node: the nodes' runs follow each other in touched order
         add_start = np.append(np.searchsorted(nodes, touched), len(nodes)).astype(np.int32)
-        touched_wp = wp.array(touched, dtype=wp.int32, device=dev)
-        changed_wp = wp.array(changed, dtype=wp.uint8, device=dev)
-        add_start_wp = wp.array(add_start, dtype=wp.int32, device=dev)
-        count = wp.empty(len(touched), dtype=wp.int32, device=dev)
+        touched_wp = device_array(touched, wp.int32, dev)
+        changed_wp = device_array(changed, wp.uint8, dev)
+        add_start_wp = device_array(add_start, wp.int32, dev)
+        count = device_empty(len(touched), wp.int32, dev)
         launch(k.incidence_count_kernel, len(touched), [touched_wp, self.node_range, self.node_corners, changed_wp,
                add_start_wp], [count], dev, th, min_chunk=1 << 12)  # fmt: skip
         counts = count.numpy()
@@ -444,11 +444,11 @@ class Elements:
         start[moved] = self._tail + np.cumsum(size) - size
         scratch_start = np.zeros(len(touched) + 1, dtype=np.int32)  # (each merged list's place in the scratch)
         np.cumsum(counts, out=scratch_start[1:])
-        scratch = wp.empty(max(int(scratch_start[-1]), 1), dtype=wp.int32, device=dev)
+        scratch = device_empty(max(int(scratch_start[-1]), 1), wp.int32, dev)
         launch(k.incidence_merge_kernel, len(touched),
                [touched_wp, self.node_range, self.node_corners, changed_wp, add_start_wp,
-                wp.array(cols, dtype=wp.int32, device=dev), wp.array(scratch_start, dtype=wp.int32, device=dev),
-                wp.array(start, dtype=wp.int32, device=dev), scratch], [self.node_corners], dev, th,
+                device_array(cols, wp.int32, dev), device_array(scratch_start, wp.int32, dev),
+                device_array(start, wp.int32, dev), scratch], [self.node_corners], dev, th,
                min_chunk=1 << 12)  # fmt: skip
         # commit: the ranges (new nodes' rows appended) and the moved lists' slots
         self._range_host = self._grown("_range_host", N, 0)
@@ -493,18 +493,18 @@ class Elements:
             if cuda and current is not None and current.shape[0] == T:
                 current.assign(view)
             else:
-                setattr(self, name, wp.array(view, dtype=float, device=dev, copy=cuda))
+                setattr(self, name, device_array(view, float, dev, copy=cuda))
 
     def _rebuild(self, ids: np.ndarray, touched: np.ndarray | None = None) -> None:
         """Element data of tets ``ids``, the incidence, and the masses of the ``touched`` nodes (None: all;
         the others' stay in place)."""
         dev, T, N = self.device, self.tet_count, self.node_count
         old_n = self.mass.shape[0] if getattr(self, "mass", None) is not None else 0
-        self.rest = wp.array(self.rest_host, dtype=wp.vec3, device=dev)
+        self.rest = device_array(self.rest_host, wp.vec3, dev)
         # on the CPU the tets and live flags are the host arrays themselves (written only by a rebuild)
         copy = wp.get_device(dev).is_cuda
-        self.tets = wp.array(self.tets_host, dtype=wp.vec4i, device=dev, copy=copy)
-        self.alive = alive = wp.array(self.alive_host.view(np.uint8), dtype=wp.uint8, device=dev, copy=copy)
+        self.tets = device_array(self.tets_host, wp.vec4i, dev, copy=copy)
+        self.alive = alive = device_array(self.alive_host.view(np.uint8), wp.uint8, dev, copy=copy)
         self._lame(ids)
         self._per_tet(("density",), ids, lambda rows: self.density_host[rows][None])
         # kept buffers (room to grow): the tets not in ids keep their values in place, the new ones are in ids
@@ -516,7 +516,7 @@ class Elements:
                 wp.copy(view, getattr(self, name), count=keep)
             setattr(self, name, view)
         if ids.size:
-            ids_wp = wp.array(ids, dtype=wp.int32, device=dev)
+            ids_wp = device_array(ids, wp.int32, dev)
             # (a light kernel: split from 64K tets; a cut's few hundred in one launch, where waking the pool
             # for a second piece took 0.3 ms against 0.05 for the whole)
             launch(k.prepare_elements_kernel, len(ids), [self.rest, self.tets, alive, ids_wp],
@@ -537,6 +537,6 @@ class Elements:
             return
         if self._bases["mass"] is not base:
             wp.copy(self.mass, mass, count=min(old_n, N))
-        nodes = wp.array(self.touched_nodes, dtype=wp.int32, device=dev)
+        nodes = device_array(self.touched_nodes, wp.int32, dev)
         launch(k.gather_masses_kernel, len(self.touched_nodes), [nodes, *gather], [self.mass], dev, self.threads,
                min_chunk=1 << 14)  # fmt: skip

@@ -46,7 +46,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
-from .._stages import column_bounds, room
+from .._stages import column_bounds, device_empty, room
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
 from ._coarse import node_pieces
@@ -336,9 +336,13 @@ class Simulation:
         added = np.asarray(positions, dtype=np.float32)
         if N > kept:
             for buffer, rows in ((self._x[0], added), (self._v[0], np.asarray(velocities, dtype=np.float32)),
-                                 (self._target, added)):  # fmt: skip
-                (buffer[kept:] if kept else buffer).assign(rows)
-            (self._external[kept:] if kept else self._external).zero_()
+                                 (self._target, added), (self._external, 0.0)):  # fmt: skip
+                if dev.is_cpu:  # (the rows written in place: no Warp views of them to make)
+                    buffer.numpy()[kept:] = rows
+                elif np.ndim(rows):
+                    (buffer[kept:] if kept else buffer).assign(rows)
+                else:
+                    (buffer[kept:] if kept else buffer).zero_()
         for buffer in (self._x[1], self._v[1]):
             buffer.zero_()
         # a rebuild's element states keep their buffers: the current one becomes state 0 (its values for the
@@ -358,7 +362,7 @@ class Simulation:
                                       self.preconditioner, known, getattr(self, "_solver", None),
                                       sources)  # fmt: skip
         blocks = block_count(N, dev)
-        self._check_bad = wp.zeros(blocks, dtype=wp.int32, device=dev)
+        self._check_bad = device_empty(blocks, wp.int32, dev, zero=True)
         self._check_sums = wp.zeros((len(k.CHECK_ROWS), blocks), dtype=wp.float64, device=dev)
         self._mass = e.mass.numpy().astype(np.float64)
         # |m|_2: the right-hand side's norm per unit velocity, the scale of CG's absolute tolerance
