@@ -330,13 +330,21 @@ def _reference_layout(c, e) -> tuple:
 
 
 def _check_grouping(c, corner, live, slot) -> None:
-    """Every slot is listed once in the grouping by pair, and each live tet's slot names its corners' pair."""
+    """Every slot is listed once in the grouping by pair (the aggregation's and the one of the slots added
+    since), each pair's slots in ascending order over the two (the order of a fresh layout's sums), and each
+    live tet's slot names its corners' pair."""
     total = c.slots.shape[0]
-    listed = np.sort(c.pair_slots.numpy())
+    P = len(c.pair_aggregates)
+    offsets, extra_offsets = c.pair_offsets.numpy(), c.extra_offsets.numpy()
+    base, extra = c.pair_slots.numpy()[: offsets[-1]], c.extra_slots.numpy()[: extra_offsets[-1]]
+    listed = np.sort(np.concatenate([base, extra]))
     np.testing.assert_array_equal(listed, np.arange(total))
-    pair_of_slot = np.repeat(np.arange(len(c.pair_aggregates)), np.diff(c.pair_offsets.numpy()))
+    pair_of_slot = np.concatenate([np.repeat(np.arange(P), np.diff(offsets)), np.repeat(np.arange(P), np.diff(extra_offsets))])
+    for p in range(P):
+        summed = np.concatenate([base[offsets[p] : offsets[p + 1]], extra[extra_offsets[p] : extra_offsets[p + 1]]])
+        assert (np.diff(summed) > 0).all()
     code = np.empty(total, dtype=np.int64)
-    code[c.pair_slots.numpy()] = pair_of_slot
+    code[np.concatenate([base, extra])] = pair_of_slot
     pa = c.pair_aggregates.numpy().astype(np.int64)
     t, a, b = np.nonzero(live[:, None, None] & np.ones((1, 4, 4), bool))
     np.testing.assert_array_equal(pa[code[slot[t, a, b]]], np.stack([corner[t, a], corner[t, b]], axis=1))
@@ -361,10 +369,12 @@ def test_coarse_slots_are_the_reference_layout():
 
 
 def test_a_cut_carries_the_coarse_space_over(monkeypatch):
-    """A cut that severs nothing keeps the coarse space's aggregates (CoarseSpace.follow): old nodes keep
-    theirs, each new node takes its source's (a split point: the nearer end of its edge); the live tets' slots
-    do not overlap and are grouped by their pairs; the coarse matrix and its factor equal, bit for bit, those
-    of a coarse space laid out from scratch on the same aggregates; the next step converges."""
+    """Cuts that sever nothing keep the coarse space's aggregates (CoarseSpace.follow): old nodes keep theirs,
+    each new node takes its source's (a split point: the nearer end of its edge); the live tets' slots do not
+    overlap and are grouped by their pairs; the coarse matrix and its factor equal, bit for bit, those of a
+    coarse space laid out from scratch on the same aggregates; the next step converges. Two cuts one after
+    the other: the second follows a space that was followed (its added slots grouped apart from the
+    aggregation's, merged over both cuts)."""
     from warpblob.sim import _coarse
     from warpblob.sim._coarse import CoarseSpace
 
@@ -373,41 +383,42 @@ def test_a_cut_carries_the_coarse_space_over(monkeypatch):
     s = TetStructure.from_tetmesh(box)
     sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 0] == 0.0)
     sim.step(2)
-    before = sim._solver.coarse.node_aggregate.numpy().copy()
-    s.set_positions(sim.positions)
-    a = np.array([[0.1, 0.23, 0.7], [0.8, 0.26, 0.7]])
-    r = cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.45)), collect=False)
-    assert r.components == 1 and r.tets_added > 0 and len(r.new_nodes) > 0
-    sim.apply_cut(r)
-    c, e = sim._solver.coarse, sim.elements
-    assert c.followed
-    agg = c.node_aggregate.numpy()
-    mass = e.mass.numpy()
-    old = len(before)
-    np.testing.assert_array_equal(agg[:old][mass[:old] > 0], before[mass[:old] > 0])
-    assert (agg[:old][mass[:old] <= 0] == -1).all()
-    src = np.where(r.node_weights < 0.5, r.node_sources[:, 0], r.node_sources[:, 1])
-    np.testing.assert_array_equal(agg[r.new_nodes], before[src])
-    corner, live, u, slot = _reference_layout(c, e)
-    starts = c.slot_start.numpy()[:-1][live]
-    order = np.argsort(starts)
-    ends = (starts + (u * u)[live])[order]
-    assert (ends[:-1] <= starts[order][1:]).all() and ends[-1] <= c.slots.shape[0]
-    _check_grouping(c, corner, live, slot)
-    # the coarse matrix on the same aggregates, laid out from scratch (dead tets without slots)
-    ref = CoarseSpace.laid_out(e, sim._solver.coarse_axes, agg, c.aggregate_count, c.cell)
-    assert ref.slots.shape[0] < c.slots.shape[0]
-    sim.step(1)  # (its assembly writes the filter's axes the coarse matrix reads)
-    assert sim.stats["relative_residual"] <= sim.tolerance * 1.0001
-    x, rotated = sim._x[sim._cur], sim._state.rotated
-    for space in (c, ref):
-        space.refresh(x, rotated, 1.3, 0.02)
-    np.testing.assert_array_equal(c.coarse.numpy(), ref.coarse.numpy())
-    # the nodes grouped by aggregate (merged over the cut) as a fresh layout sorts them
-    np.testing.assert_array_equal(c.aggregate_offsets.numpy(), ref.aggregate_offsets.numpy())
-    np.testing.assert_array_equal(c.aggregate_nodes.numpy(), ref.aggregate_nodes.numpy())
-    np.testing.assert_array_equal(c.lower.numpy(), ref.lower.numpy())
-    assert np.abs(ref.coarse.numpy()).max() > 0
+    for a in (np.array([[0.1, 0.23, 0.7], [0.8, 0.26, 0.7]]), np.array([[0.3, 0.1, 0.7], [0.35, 0.4, 0.7]])):
+        before = sim._solver.coarse.node_aggregate.numpy().copy()
+        s.set_positions(sim.positions)
+        r = cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.45)), collect=False)
+        assert r.components == 1 and r.tets_added > 0 and len(r.new_nodes) > 0
+        sim.apply_cut(r)
+        c, e = sim._solver.coarse, sim.elements
+        assert c.followed
+        agg = c.node_aggregate.numpy()
+        mass = e.mass.numpy()
+        old = len(before)
+        np.testing.assert_array_equal(agg[:old][mass[:old] > 0], before[mass[:old] > 0])
+        assert (agg[:old][mass[:old] <= 0] == -1).all()
+        src = np.where(r.node_weights < 0.5, r.node_sources[:, 0], r.node_sources[:, 1])
+        np.testing.assert_array_equal(agg[r.new_nodes], before[src])
+        corner, live, u, slot = _reference_layout(c, e)
+        starts = c.slot_start.numpy()[:-1][live]
+        order = np.argsort(starts)
+        ends = (starts + (u * u)[live])[order]
+        assert (ends[:-1] <= starts[order][1:]).all() and ends[-1] <= c.slots.shape[0]
+        _check_grouping(c, corner, live, slot)
+        # the coarse matrix on the same aggregates, laid out from scratch (dead tets without slots)
+        ref = CoarseSpace.laid_out(e, sim._solver.coarse_axes, agg, c.aggregate_count, c.cell)
+        assert ref.slots.shape[0] < c.slots.shape[0]
+        sim.step(1)  # (its assembly writes the filter's axes the coarse matrix reads)
+        assert sim.stats["relative_residual"] <= sim.tolerance * 1.0001
+        x, rotated = sim._x[sim._cur], sim._state.rotated
+        for space in (c, ref):
+            space.refresh(x, rotated, 1.3, 0.02)
+        np.testing.assert_array_equal(c.coarse.numpy(), ref.coarse.numpy())
+        # the nodes grouped by aggregate (merged over the cut) as a fresh layout sorts them
+        np.testing.assert_array_equal(c.aggregate_offsets.numpy(), ref.aggregate_offsets.numpy())
+        np.testing.assert_array_equal(c.aggregate_nodes.numpy(), ref.aggregate_nodes.numpy())
+        np.testing.assert_array_equal(c.lower.numpy(), ref.lower.numpy())
+        assert np.abs(ref.coarse.numpy()).max() > 0
+    assert c.extra_offsets.numpy()[-1] > 0  # (the slots of both cuts' tets, apart)
 
 
 @pytest.mark.parametrize("growth", [0.0, 1.0])

@@ -297,24 +297,31 @@ class CoarseSpace:
         return device_array(np.ascontiguousarray(a), dtype, dev, copy=dev.is_cuda)
 
     def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots,
-                   kept: dict, order: np.ndarray | None = None) -> None:  # fmt: skip
+                   kept: dict, order: np.ndarray | None = None, extra: tuple | None = None) -> None:  # fmt: skip
         """Store the aggregates, the slot layout and its grouping (kept on the host too, for :meth:`follow`),
         and make the per-node and per-slot buffers (in the bases ``kept``, the space followed from, where
         they have room: fresh pages cost more than the writes). ``order``: the aggregated nodes by aggregate,
-        then by index (default: sorted here)."""
+        then by index (default: sorted here). ``extra``: ``(offsets, slots)``, the slots of the tets added
+        since the aggregation, grouped by pair as ``pair_slots`` are, each pair's in slot order (default:
+        none); a pair's sum takes its ``pair_slots`` and then these, which is the order of its slots."""
         dev, N, G = e.device, e.node_count, self.aggregate_count
         if order is None:
             order = np.argsort(node_aggregate, kind="stable")
             order = order[node_aggregate[order] >= 0]
         offsets = np.zeros(G + 1, dtype=np.int32)
         offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
+        if extra is None:
+            extra = (np.zeros(len(pairs) + 1, dtype=np.int64), np.zeros(0, dtype=np.int32))
         self._host = {"aggregate": node_aggregate, "start": start, "pairs": pairs, "pair_offsets": pair_offsets,
-                      "pair_slots": pair_slots, "order": order}  # fmt: skip
+                      "pair_slots": pair_slots, "order": order, "extra_offsets": extra[0],
+                      "extra_slots": extra[1]}  # fmt: skip
         self.node_aggregate = self._array(node_aggregate)
         self.aggregate_offsets, self.aggregate_nodes = self._array(offsets), self._array(order.astype(np.int32))
         # a tet's slots are found again from these by the coupling kernel (no (16 T,) table of them)
         self.slot_start, self.tet_alive = start_wp, alive_wp
         self.pair_offsets, self.pair_slots = self._array(pair_offsets.astype(np.int32)), self._array(pair_slots)
+        self.extra_offsets = self._array(extra[0].astype(np.int32))
+        self.extra_slots = self._array(extra[1] if len(extra[1]) else np.zeros(1, dtype=np.int32))
         self._bases = {}
         # (slots: zeroed by each refresh)
         self._bases["slots"], self.slots = room(kept.get("slots"), int(start[-1]), wp.spatial_matrix, dev)
@@ -378,6 +385,7 @@ class CoarseSpace:
             start = np.concatenate([start, np.zeros(T - old_t + int(T * ROOM), dtype=np.int64)])
         start = (start if start.base is None else start.base)[: T + 1]
         pairs, pair_offsets, pair_slots = host["pairs"], host["pair_offsets"], host["pair_slots"]
+        extra = (host["extra_offsets"], host["extra_slots"])
         if added:
             # the added tets' slots (one launch each over them alone: a cut adds a few thousand)
             squares = device_empty(T, wp.int32, dev)
@@ -395,14 +403,15 @@ class CoarseSpace:
             pair = np.searchsorted(pairs, code)
             if pair.max() >= len(pairs) or (pairs[pair] != code).any():
                 return None  # a pair of aggregates the coarse matrix has no block for
-            # merged grouping: each pair's old slots, then its new ones in slot order
+            # merged grouping: each pair's slots added before, then its new ones in slot order, apart from the
+            # aggregation's (which stay as they are: merging into them would copy 16 T entries a cut)
             order = np.argsort(pair, kind="stable")
             added_per_pair = np.bincount(pair, minlength=len(pairs))
             before = np.zeros(len(pairs) + 1, dtype=np.int64)
             np.cumsum(added_per_pair, out=before[1:])
             # (np.insert places equal positions in the order given)
-            merged = np.insert(pair_slots, pair_offsets[1:][pair[order]], (first_new + order).astype(np.int32))
-            pair_offsets, pair_slots = pair_offsets + before, merged
+            merged = np.insert(extra[1], extra[0][1:][pair[order]], (first_new + order).astype(np.int32))
+            extra = (extra[0] + before, merged)
         c = CoarseSpace.__new__(CoarseSpace)
         c.elements, c.axes, c.threads, c.cell = e, axes, self.threads, self.cell
         c.aggregate_count, c.size = G, self.size
@@ -413,7 +422,7 @@ class CoarseSpace:
         added_nodes = added_nodes[np.argsort(node_aggregate[added_nodes], kind="stable")]
         at = np.searchsorted(node_aggregate[kept], node_aggregate[added_nodes], side="right")
         c._set_slots(e, node_aggregate, start, c_start, alive_wp, pairs, pair_offsets, pair_slots, self._bases,
-                     np.insert(kept, at, added_nodes))  # fmt: skip
+                     np.insert(kept, at, added_nodes), extra)  # fmt: skip
         # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
         for name in ("pair_aggregates", "coarse", "first_host", "first", "lower", "scale", "work", "rc", "zc"):
             setattr(c, name, getattr(self, name))
@@ -451,7 +460,8 @@ class CoarseSpace:
                 self.node_aggregate, self.slot_start, float(c_stiff)],
                [self.slots], dev, th, min_chunk=COUPLE_GRAIN)  # fmt: skip
         wp.launch(k.assemble_coarse_kernel, self.pair_aggregates.shape[0],
-                  inputs=[self.pair_offsets, self.pair_slots, self.pair_aggregates, self.slots, self.aggregate_offsets,
+                  inputs=[self.pair_offsets, self.pair_slots, self.extra_offsets, self.extra_slots,
+                          self.pair_aggregates, self.slots, self.aggregate_offsets,
                           self.aggregate_nodes, e.mass, self.axes, self.node_mode, float(c_mass), 0, self.coarse],
                   device=dev)  # fmt: skip
         # host sync: the coarse matrix is scaled on the host, then factored by a kernel

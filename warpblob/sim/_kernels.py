@@ -1130,6 +1130,8 @@ def couple_tets_kernel(
 def assemble_coarse_kernel(
     pair_offsets: wp.array(dtype=wp.int32),
     pair_slots: wp.array(dtype=wp.int32),
+    extra_offsets: wp.array(dtype=wp.int32),
+    extra_slots: wp.array(dtype=wp.int32),
     pair_aggregates: wp.array(dtype=wp.vec2i),
     slots: wp.array(dtype=wp.spatial_matrix),
     aggregate_offsets: wp.array(dtype=wp.int32),
@@ -1141,13 +1143,16 @@ def assemble_coarse_kernel(
     offset: int,
     coarse: wp.array2d(dtype=wp.spatial_matrix),
 ):
-    """Block ``(g, h)`` of the coarse matrix ``P^T A' P``: its tets' slots in order, plus on the diagonal
-    ``c_mass sum_i m_i Phi_i^T S_i Phi_i`` over the aggregate's nodes."""
+    """Block ``(g, h)`` of the coarse matrix ``P^T A' P``: its tets' slots in order (the aggregation's, then
+    those of the tets added since), plus on the diagonal ``c_mass sum_i m_i Phi_i^T S_i Phi_i`` over the
+    aggregate's nodes."""
     p = wp.tid() + offset
     gh = pair_aggregates[p]
     W = wp.spatial_matrix()
     for k in range(pair_offsets[p], pair_offsets[p + 1]):
         W += slots[pair_slots[k]]
+    for k in range(extra_offsets[p], extra_offsets[p + 1]):
+        W += slots[extra_slots[k]]
     if gh[0] == gh[1]:
         for k in range(aggregate_offsets[gh[0]], aggregate_offsets[gh[0] + 1]):
             i = aggregate_nodes[k]
