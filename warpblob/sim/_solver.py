@@ -71,7 +71,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch, submit, thread_count
-from .._stages import room
+from .._stages import device_array, room
 from . import _kernels as k
 from ._coarse import COARSE_EVERY, CoarseSpace
 from ._rigid import norm_blocks_kernel
@@ -238,7 +238,7 @@ class ElementState:
             ids = np.concatenate([np.unique(ids[(ids >= 0) & (ids < count)]), np.arange(count, e.tet_count)])
             ids = ids.astype(np.int32)
             if ids.size:
-                split_launch(k.rotate_elements_kernel, len(ids), [wp.array(ids, dtype=wp.int32, device=dev),
+                split_launch(k.rotate_elements_kernel, len(ids), [device_array(ids, wp.int32, dev),
                              *inputs], out, dev, threads, TET_GRAIN)  # fmt: skip
         gather = [e.node_range, e.node_corners, self.corner_force, self.corner_block]
         nodes = nodes[0] if carry is not None and nodes and nodes[0] is not None else None
@@ -252,7 +252,7 @@ class ElementState:
                 wp.copy(a, b, count=kept)
         nodes = np.asarray(nodes, dtype=np.int32)
         if nodes.size:
-            split_launch(k.gather_elements_kernel, len(nodes), [wp.array(nodes, dtype=wp.int32, device=dev),
+            split_launch(k.gather_elements_kernel, len(nodes), [device_array(nodes, wp.int32, dev),
                          *gather], [self.node_force, self.node_block], dev, threads, NODE_GRAIN)  # fmt: skip
 
 
