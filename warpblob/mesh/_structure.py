@@ -55,7 +55,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import WarpblobError
 from .._parallel import launch, submit, thread_count
-from .._stages import device_empty, host_array, mark_heads_kernel, rows_all, rows_any
+from .._stages import device_array, device_empty, host_array, mark_heads_kernel, rows_all, rows_any
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
@@ -831,8 +831,8 @@ def _insert_edges(edge_nodes: wp.array, ids: np.ndarray, bits: int, keys: wp.arr
     if len(ids):
         # Warp's CPU atomics are plain loads and stores: this launch must not be range-split across threads
         wp.launch(insert_edge_ids_kernel, dim=len(ids), device=device,
-                  inputs=[edge_nodes, wp.array(ids, dtype=wp.int32, device=device,
-                                               copy=wp.get_device(device).is_cuda), bits, keys, values])  # fmt: skip
+                  inputs=[edge_nodes, device_array(ids, wp.int32, device, copy=wp.get_device(device).is_cuda), bits,
+                          keys, values])  # fmt: skip
 
 
 def _face_edge_slots() -> np.ndarray:
@@ -1613,10 +1613,10 @@ class TetStructure:
         found = device_empty(len(pairs), wp.int32, dev)
         copy = dev.is_cuda  # on the CPU the kernel reads the table's own memory
         inputs = [
-            wp.array(self._table_keys, dtype=wp.int64, device=dev, copy=copy),
-            wp.array(self._table_values, dtype=wp.int32, device=dev, copy=copy),
+            device_array(self._table_keys, wp.int64, dev, copy=copy),
+            device_array(self._table_values, wp.int32, dev, copy=copy),
             self._table_bits,
-            wp.array(pairs, dtype=wp.vec2i, device=dev, copy=copy),
+            device_array(pairs, wp.vec2i, dev, copy=copy),
         ]
         launch(find_edges_kernel, len(pairs), inputs, [found], dev, threads)
         return found.numpy()
@@ -2286,7 +2286,7 @@ class TetStructure:
             host_array(faces["cells"], wp.vec2i),
             host_array(cells["faces"], wp.vec4i),
             host_array(cells["alive"].view(np.uint8), wp.uint8),
-            wp.array(np.ascontiguousarray(seeds, dtype=np.int32), dtype=wp.int32, device=cpu), budget,
+            device_array(seeds, wp.int32, cpu), budget,
             host_array(mark, wp.int32),
             host_array(queue, wp.int32),
             host_array(roots, wp.int32), device_empty(count, wp.int32, cpu),

@@ -399,7 +399,10 @@ class Simulation:
         rigid_free = self._rigid_pieces()
         fixed = self._fixed_mask | self._rigid_fixed
         flags = np.where(fixed, k.FIXED, np.where(rigid_free, k.RIGID, np.where(self._mass > 0, k.FREE, k.INACTIVE)))
-        self._flags.assign(flags.astype(np.uint8))
+        if self.device.is_cpu:
+            self._flags.numpy()[:] = flags
+        else:
+            self._flags.assign(flags.astype(np.uint8))
         self._solver.set_rigid(self._bodies)
         self._solver.invalidate()
         self._refresh()
