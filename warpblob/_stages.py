@@ -195,24 +195,37 @@ def _address(values: np.ndarray) -> int:
         return values.ctypes.data
 
 
+#: per Warp dtype: (numpy scalar dtype, trailing shape), or None where numpy has no such scalar
+_KINDS: dict = {}
+
+
+def _kind(dtype):
+    kind = _KINDS.get(dtype, False)
+    if kind is False:
+        inner = tuple(getattr(dtype, "_shape_", ()))
+        try:
+            kind = (np.dtype(wp.dtype_to_numpy(getattr(dtype, "_wp_scalar_type_", dtype))), inner)
+        except TypeError:
+            kind = None
+        _KINDS[dtype] = kind
+    return kind
+
+
 def _fields(values: np.ndarray, dtype) -> dict | None:
     """The array-dependent attributes of ``wp.array(values, dtype=dtype, device="cpu", copy=False)``, or
     None where the fast path does not cover it (not C-contiguous, empty, other numpy dtype or trailing shape)."""
-    inner = getattr(dtype, "_shape_", ())
-    scalar = getattr(dtype, "_wp_scalar_type_", dtype)
-    k = len(inner)
-    try:
-        np_dtype = wp.dtype_to_numpy(scalar)
-    except TypeError:
+    kind = _kind(dtype)
+    if kind is None or values.dtype != kind[0] or not values.flags.c_contiguous or not values.size:
         return None
-    if (values.dtype != np_dtype or not values.size or not values.flags.c_contiguous or values.ndim <= k
-            or values.shape[values.ndim - k:] != tuple(inner)):  # fmt: skip
-        return None
-    shape = values.shape[: values.ndim - k]
-    size = 1
-    for n in shape:
-        size *= n
-    return {"ptr": _address(values), "shape": shape, "strides": values.strides[: values.ndim - k], "size": size,
+    inner, shape, size = kind[1], values.shape, values.size
+    if inner:
+        k = len(inner)
+        if len(shape) <= k or shape[-k:] != inner:
+            return None
+        shape = shape[:-k]
+        for d in inner:
+            size //= d
+    return {"ptr": _address(values), "shape": shape, "strides": values.strides[: len(shape)], "size": size,
             "capacity": values.nbytes, "_ref": values}  # fmt: skip
 
 
@@ -227,12 +240,12 @@ def host_array(values: np.ndarray, dtype) -> wp.array:
     """
     global _CPU
     dtype = _PYTHON_TYPES.get(dtype, dtype)
-    fields = _fields(values, dtype) if isinstance(values, np.ndarray) else None
+    fields = _fields(values, dtype) if type(values) is np.ndarray else None
     if fields is not None:
         key = (dtype, len(fields["shape"]), "wrap")
         template = _TEMPLATES.get(key, False)
         if template:
-            out = wp.array.__new__(wp.array)
+            out = object.__new__(wp.array)  # (wp.array.__new__ sets two attributes the template sets too)
             out.__dict__ = {**template, **fields}
             return out
         if template is False:  # the first of its kind: Warp makes it, and the fast path is checked against it
@@ -254,11 +267,8 @@ def device_array(values, dtype, device, copy: bool = True) -> wp.array:
     """
     if (device == "cpu") if isinstance(device, str) else device.is_cpu:
         dtype = _PYTHON_TYPES.get(dtype, dtype)
-        scalar = getattr(dtype, "_wp_scalar_type_", dtype)
-        try:
-            np_dtype = wp.dtype_to_numpy(scalar)
-        except TypeError:
-            np_dtype = None
+        kind = _kind(dtype)
+        np_dtype = None if kind is None else kind[0]
         if copy and np_dtype is not None:
             return host_array(np.array(values, dtype=np_dtype, order="C"), dtype)
         if isinstance(values, np.ndarray) and values.dtype == np_dtype and values.flags.c_contiguous:
@@ -276,13 +286,9 @@ def device_empty(n: int, dtype, device, zero: bool = False) -> wp.array:
     """
     if n > 0 and ((device == "cpu") if isinstance(device, str) else device.is_cpu):
         dtype = _PYTHON_TYPES.get(dtype, dtype)
-        try:
-            np_dtype = wp.dtype_to_numpy(getattr(dtype, "_wp_scalar_type_", dtype))
-        except TypeError:
-            np_dtype = None
-        if np_dtype is not None:
-            shape = (int(n), *getattr(dtype, "_shape_", ()))
-            return host_array((np.zeros if zero else np.empty)(shape, np_dtype), dtype)
+        kind = _kind(dtype)
+        if kind is not None:
+            return host_array((np.zeros if zero else np.empty)((int(n), *kind[1]), kind[0]), dtype)
     return (wp.zeros if zero else wp.empty)(n, dtype=dtype, device=device)
 
 
