@@ -170,6 +170,37 @@ def _cut_simulation():
     return sim, r
 
 
+def test_the_rows_a_rebuild_keeps_are_written_before_they_are_read():
+    """A rebuild after a cut keeps, without clearing them, the old rows of the buffers that a step writes at
+    every node before reading (the solver's system, CG vectors and filter; the other position and velocity
+    buffers; the moved flags; the coarse space's modes): poisoned with NaN there, the next steps of a
+    simulation on the ground give the same positions, velocities and stats, bit for bit, as the
+    same simulation not poisoned; the ones that must be zero after a rebuild (the contact arrays) are."""
+    from warpblob.sim._solver import _WRITTEN
+
+    def made():
+        sim, _ = _cut_simulation()
+        sim.ground = (-0.05, 0.5)
+        return sim
+
+    clean, poisoned = made(), made()
+    old = poisoned._solver.coarse.node_aggregate.shape[0] - 1  # (every row but the last: old nodes)
+    assert poisoned._solver.coarse.followed
+    victims = [getattr(poisoned._solver, name) for name in _WRITTEN if name != "ones"]
+    victims += [poisoned._x[1], poisoned._v[1], poisoned._moved]
+    victims += [poisoned._solver.coarse.node_mode, poisoned._solver.coarse.reference]
+    for arr in victims:
+        arr.numpy()[:old] = np.nan
+    for sim in (clean, poisoned):
+        for name in ("contact_force", "contact_weight", "contact_block"):
+            assert not getattr(sim._solver, name).numpy().any()
+        sim.step(3)
+    np.testing.assert_array_equal(poisoned.positions, clean.positions)
+    np.testing.assert_array_equal(poisoned.velocities, clean.velocities)
+    assert poisoned.stats["cg_iterations_total"] == clean.stats["cg_iterations_total"]
+    assert np.isfinite(clean.positions).all() and np.abs(clean.velocities).max() > 0
+
+
 def test_element_pass_after_a_cut_is_the_full_pass():
     """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
     array equals a full pass at the same positions, bit for bit."""

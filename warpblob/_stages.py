@@ -12,7 +12,7 @@ import warp as wp
 from ._errors import ResourceError
 from ._parallel import launch
 
-__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "host_array", "device_array", "device_empty",
+__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "clear_rows", "host_array", "device_array", "device_empty",
            "head",
            "column_bounds", "rows_any", "rows_all"]
 
@@ -227,6 +227,26 @@ def _fields(values: np.ndarray, dtype) -> dict | None:
             size //= d
     return {"ptr": _address(values), "shape": shape, "strides": values.strides[: len(shape)], "size": size,
             "capacity": values.nbytes, "_ref": values}  # fmt: skip
+
+
+def clear_rows(view: wp.array, start: int = 0, value: float = 0.0) -> None:
+    """Set rows ``[start, n)`` of the 1-D array ``view`` to ``value`` in every component (0: zero them).
+
+    Example:
+        >>> a = wp.array(np.arange(4, dtype=np.float32), device="cpu")
+        >>> clear_rows(a, 2); a.numpy().tolist()
+        [0.0, 1.0, 0.0, 0.0]
+    """
+    n = view.shape[0]
+    if start >= n:
+        return
+    if view.device.is_cpu:  # (numpy's fill of the rows: no Warp view of them to make)
+        view.numpy()[start:] = value
+    elif value == 0.0:
+        view[start:].zero_()
+    else:
+        rows = view[start:]
+        rows.fill_(rows.dtype(*([value] * getattr(rows.dtype, "_length_", 1))))
 
 
 def host_array(values: np.ndarray, dtype) -> wp.array:

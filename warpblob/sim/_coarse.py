@@ -85,7 +85,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from .._stages import ROOM, column_bounds, device_array, device_empty, room
+from .._stages import ROOM, clear_rows, column_bounds, device_array, device_empty, room
 from ..mesh._structure import _connected, _unique_inverse
 from . import _kernels as k
 
@@ -297,13 +297,16 @@ class CoarseSpace:
         return device_array(np.ascontiguousarray(a), dtype, dev, copy=dev.is_cuda)
 
     def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots,
-                   kept: dict, order: np.ndarray | None = None, extra: tuple | None = None) -> None:  # fmt: skip
+                   kept: dict, order: np.ndarray | None = None, extra: tuple | None = None,
+                   kept_rows: int = 0) -> None:  # fmt: skip
         """Store the aggregates, the slot layout and its grouping (kept on the host too, for :meth:`follow`),
         and make the per-node and per-slot buffers (in the bases ``kept``, the space followed from, where
         they have room: fresh pages cost more than the writes). ``order``: the aggregated nodes by aggregate,
         then by index (default: sorted here). ``extra``: ``(offsets, slots)``, the slots of the tets added
         since the aggregation, grouped by pair as ``pair_slots`` are, each pair's in slot order (default:
-        none); a pair's sum takes its ``pair_slots`` and then these, which is the order of its slots."""
+        none); a pair's sum takes its ``pair_slots`` and then these, which is the order of its slots.
+        ``kept_rows``: the nodes whose rows of the per-node buffers a refresh writes before anything reads
+        them (a followed space's old nodes: their rows are kept as they are where the base is)."""
         dev, N, G = e.device, e.node_count, self.aggregate_count
         if order is None:
             order = np.argsort(node_aggregate, kind="stable")
@@ -327,7 +330,7 @@ class CoarseSpace:
         self._bases["slots"], self.slots = room(kept.get("slots"), int(start[-1]), wp.spatial_matrix, dev)
         for name in ("node_mode", "reference"):
             self._bases[name], view = room(kept.get(name), N, wp.vec3, dev)
-            view.zero_()
+            clear_rows(view, kept_rows if self._bases[name] is kept.get(name) else 0)
             setattr(self, name, view)
         self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
         self._aggregated = len(order)
@@ -422,7 +425,7 @@ class CoarseSpace:
         added_nodes = added_nodes[np.argsort(node_aggregate[added_nodes], kind="stable")]
         at = np.searchsorted(node_aggregate[kept], node_aggregate[added_nodes], side="right")
         c._set_slots(e, node_aggregate, start, c_start, alive_wp, pairs, pair_offsets, pair_slots, self._bases,
-                     np.insert(kept, at, added_nodes), extra)  # fmt: skip
+                     np.insert(kept, at, added_nodes), extra, old_n)  # fmt: skip
         # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
         for name in ("pair_aggregates", "coarse", "first_host", "first", "lower", "scale", "work", "rc", "zc"):
             setattr(c, name, getattr(self, name))

@@ -46,7 +46,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
-from .._stages import column_bounds, device_empty, room
+from .._stages import clear_rows, column_bounds, device_empty, room
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
 from ._coarse import node_pieces
@@ -329,6 +329,7 @@ class Simulation:
             bases = self._kept
             for name in ("x", "v"):
                 bases[f"{name}0"], bases[f"{name}1"] = bases[f"{name}1"], bases[f"{name}0"]
+        before = dict(self.__dict__.get("_kept", {}))  # (a base made anew has no rows to keep)
         self._x = [self._node_buffer(f"x{i}", N, wp.vec3, old.get("x") if i == 0 else None, kept) for i in (0, 1)]
         self._v = [self._node_buffer(f"v{i}", N, wp.vec3, old.get("v") if i == 0 else None, kept) for i in (0, 1)]
         self._target = self._node_buffer("target", N, wp.vec3, old.get("target"), kept)
@@ -343,8 +344,10 @@ class Simulation:
                     (buffer[kept:] if kept else buffer).assign(rows)
                 else:
                     (buffer[kept:] if kept else buffer).zero_()
-        for buffer in (self._x[1], self._v[1]):
-            buffer.zero_()
+        # (the other buffers, and ``moved``, hold what the next step writes at every node before reading it:
+        # a rebuild sets the added rows only)
+        for name, buffer in (("x1", self._x[1]), ("v1", self._v[1])):
+            clear_rows(buffer, kept if self._kept[name] is before.get(name) else 0)
         # a rebuild's element states keep their buffers: the current one becomes state 0 (its values for the
         # tets that stay are then in place for the carried pass, see _refresh)
         states = getattr(self, "_states", None)
@@ -352,8 +355,8 @@ class Simulation:
         self._cur = 0
         self._moved = self._node_buffer("moved", N, wp.vec3)
         self._flags = self._node_buffer("flags", N, wp.uint8)
-        for buffer in (self._moved, self._flags):
-            buffer.zero_()
+        clear_rows(self._moved, kept if self._kept["moved"] is before.get("moved") else 0)
+        self._flags.zero_()
         self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
         # the structure's piece count (through faces, so through nodes too), where it knows it: one piece
         # spares the coarse space its count of the pieces, and a cut that leaves the count lets it carry over
