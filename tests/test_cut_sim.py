@@ -201,6 +201,36 @@ def test_the_rows_a_rebuild_keeps_are_written_before_they_are_read():
     assert np.isfinite(clean.positions).all() and np.abs(clean.velocities).max() > 0
 
 
+def test_a_rebuild_clears_the_contact_arrays_a_contact_pass_wrote():
+    """The contact arrays are zero after a rebuild, as a new solver's are: cleared whole when a contact pass
+    wrote them since they were last cleared, else only their added rows set (``contact_zero`` says which)."""
+    from warpblob.tools import Path, Probe
+
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (16, 8, 8))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 2] == 0.0,
+                        gravity=(0, 0, 0), model=wb.Box((0, 0, 0), (1.0, 0.5, 0.5), 0.05))  # fmt: skip
+    assert sim._solver.contact_zero
+    # pressed in by the third step, held, then away by the sixth
+    keys, z = [0.0, 0.05, 0.07, 0.09], [0.52, 0.45, 0.45, 2.0]
+    sim.add_tool(Probe(0.1), Path(keys, [(0.5, 0.25, h) for h in z]), stiffness=1e6)
+    blade = np.array([[0.05, 0.22, 0.7], [0.15, 0.22, 0.7]])
+    for touching in (True, False):
+        sim.step(3)
+        contact = sim._solver.contact_weight.numpy()
+        assert (contact > 0).any() == touching and sim._solver.contact_zero == (not touching)
+        s.set_positions(sim.positions)
+        r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, 0.3)), collect=False)
+        assert len(r.new_nodes) > 0
+        base = sim._solver._bases["contact_weight"]
+        sim.apply_cut(r)
+        assert sim._solver._bases["contact_weight"] is base  # (kept: not a fresh one)
+        assert sim._solver.contact_zero
+        for name in ("contact_force", "contact_weight", "contact_block"):
+            assert not getattr(sim._solver, name).numpy().any()
+        blade = blade + (0, 0.125, 0)
+
+
 def test_element_pass_after_a_cut_is_the_full_pass():
     """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
     array equals a full pass at the same positions, bit for bit."""

@@ -496,6 +496,7 @@ class Contact:
                       self._source_block, self._source_weight, G, N],
                      [solver.contact_force, solver.contact_block, solver.contact_weight], dev, th,
                      NODE_GRAIN)  # fmt: skip
+        solver.contact_zero = False
 
     def finish(self, v: wp.array, h: float) -> None:
         """The force on each tool at the end of the step, from the new velocities ``v`` (one host sync)."""
@@ -516,6 +517,7 @@ class Contact:
             solver.contact_force.zero_()
             solver.contact_block.zero_()
             solver.contact_weight.zero_()
+            solver.contact_zero = True
             self._depth.fill_(-1.0e30)
             self.forces = np.zeros((len(self.tools), 3))
             self.counts = np.zeros(len(self.tools), dtype=np.int64)

@@ -305,17 +305,22 @@ class ImplicitSolver:
         # than the writes), set as new ones would be: zero, ``ones`` one. Those that every step's assembly
         # (and the CG it starts) writes at every node before anything reads them keep the previous solver's
         # rows as they are (only the added rows are set: a rebuild after a cut would otherwise clear every
-        # node's rows of 13 buffers, 5 MB at 100K tets); the contact arrays are zeroed whole
+        # node's rows of 13 buffers, 5 MB at 100K tets); the contact arrays keep theirs while they are zero
+        # (no contact pass wrote them since they were cleared: ``contact_zero``), else are zeroed whole
         previous_bases, self._bases = getattr(previous, "_bases", {}), {}
+        keep_contact = getattr(previous, "contact_zero", False)
         for name, dtype in (("contact_force", wp.vec3), ("contact_weight", float), ("contact_block", wp.mat33),
                             ("rhs", wp.vec3), ("prescribed", wp.vec3), ("axes", wp.vec3),
                             ("coarse_axes", wp.vec3), ("ones", wp.vec3), ("inverse_block", wp.mat33),
                             ("r", wp.vec3), ("z", wp.vec3), ("p", wp.vec3), ("Ap", wp.vec3)):  # fmt: skip
             base = previous_bases.get(name)
             self._bases[name], view = room(base, N, dtype, dev)
-            kept = getattr(previous, name).shape[0] if self._bases[name] is base and name in _WRITTEN else 0
+            keep = name in _WRITTEN or (keep_contact and name.startswith("contact_"))
+            kept = getattr(previous, name).shape[0] if self._bases[name] is base and keep else 0
             clear_rows(view, kept, 1.0 if name == "ones" else 0.0)
             setattr(self, name, view)
+        #: whether the contact arrays are all zero (the contact pass sets it when it writes or clears them)
+        self.contact_zero = True
         # (``coarse_axes``: the coarse space's filter, ``axes`` with the rigid bodies' nodes left out: they
         # have their own block)
         # (not zeroed: every product writes all of it before a node's row reads its live corners)
