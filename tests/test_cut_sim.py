@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import warp as wp
 
 import warpblob as wb
 from warpblob.cut import SweepSurface, cut
@@ -480,6 +481,48 @@ def test_a_cut_carries_the_coarse_space_over(monkeypatch):
         np.testing.assert_array_equal(c.lower.numpy(), ref.lower.numpy())
         assert np.abs(ref.coarse.numpy()).max() > 0
     assert c.extra_offsets.numpy()[-1] > 0  # (the slots of both cuts' tets, apart)
+
+
+def test_the_coarse_space_follows_an_edit_that_leaves_old_nodes_without_mass(device):
+    """An edit that kills every tet of a corner node (which then leaves its aggregate) and appends copies of
+    other tets on new nodes: the followed space groups the nodes by aggregate and assembles the coarse matrix
+    as a space laid out from scratch on the same aggregates does, bit for bit."""
+    from warpblob.sim._coarse import CoarseSpace
+    from warpblob.sim._elements import Elements
+    from warpblob.sim._solver import ElementState
+
+    device = wp.get_device(device)
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
+    N, T = len(box.nodes), len(box.tets)
+    e = Elements(box.nodes, box.tets, np.ones(T, bool), np.full(T, 1e5), np.full(T, 0.35), np.full(T, 1e3),
+                 device=device)  # fmt: skip
+    ones = lambda n: wp.array(np.ones((n, 3), np.float32), dtype=wp.vec3, device=device)  # noqa: E731
+    c0 = CoarseSpace(e, ones(N), pieces=1)
+    corner = int(np.argmax(box.nodes.sum(axis=1)))  # (the box's far corner)
+    kill = np.flatnonzero((box.tets == corner).any(axis=1))
+    other = np.setdiff1d(np.arange(T), kill)[:3]
+    copies = box.tets[other].copy()
+    copies[:, 0] = N + np.arange(3)  # (each on a new node at its first corner)
+    ids = np.concatenate([kill, T + np.arange(3)])
+    e.rebuild(ids, tets=np.concatenate([box.tets[kill], copies]),
+              alive=np.concatenate([np.zeros(len(kill), bool), np.ones(3, bool)]),
+              rest=np.concatenate([box.nodes, box.nodes[box.tets[other, 0]]]), young=np.full(len(ids), 1e5),
+              poisson=np.full(len(ids), 0.35), density=np.full(len(ids), 1e3))  # fmt: skip
+    axes = ones(N + 3)
+    c = c0.follow(e, axes, box.tets[other, 0].astype(np.int64), 1)
+    assert c is not None and c.followed
+    agg = c.node_aggregate.numpy()
+    assert agg[corner] == -1 and (agg[N:] >= 0).all()
+    ref = CoarseSpace.laid_out(e, axes, agg, c.aggregate_count, c.cell)
+    np.testing.assert_array_equal(c.aggregate_offsets.numpy(), ref.aggregate_offsets.numpy())
+    np.testing.assert_array_equal(c.aggregate_nodes.numpy(), ref.aggregate_nodes.numpy())
+    x = wp.array(e.rest_host * 1.01, dtype=wp.vec3, device=device)
+    state = ElementState(e.tet_count, e.node_count, e.device)
+    state.compute(e, x)
+    for space in (c, ref):
+        space.refresh(x, state.rotated, 1.3, 0.02)
+    np.testing.assert_array_equal(c.coarse.numpy(), ref.coarse.numpy())
+    assert np.abs(ref.coarse.numpy()).max() > 0
 
 
 @pytest.mark.parametrize("growth", [0.0, 1.0])

@@ -312,11 +312,12 @@ class CoarseSpace:
             order = np.argsort(node_aggregate, kind="stable")
             order = order[node_aggregate[order] >= 0]
         offsets = np.zeros(G + 1, dtype=np.int32)
-        offsets[1:] = np.cumsum(np.bincount(node_aggregate[order], minlength=G))
+        # (each aggregate's nodes counted: the aggregated ones are those ``order`` lists)
+        offsets[1:] = np.cumsum(np.bincount(node_aggregate + 1, minlength=G + 1)[1:])
         if extra is None:
             extra = (np.zeros(len(pairs) + 1, dtype=np.int64), np.zeros(0, dtype=np.int32))
         self._host = {"aggregate": node_aggregate, "start": start, "pairs": pairs, "pair_offsets": pair_offsets,
-                      "pair_slots": pair_slots, "order": order, "extra_offsets": extra[0],
+                      "pair_slots": pair_slots, "order": order, "offsets": offsets, "extra_offsets": extra[0],
                       "extra_slots": extra[1]}  # fmt: skip
         self.node_aggregate = self._array(node_aggregate)
         self.aggregate_offsets, self.aggregate_nodes = self._array(offsets), self._array(order.astype(np.int32))
@@ -420,10 +421,14 @@ class CoarseSpace:
         c.aggregate_count, c.size = G, self.size
         # the nodes by aggregate, merged rather than sorted again: the old ones in their order (less those left
         # without mass), each added one after its aggregate's old ones (its index is past theirs)
-        kept = host["order"][node_aggregate[host["order"]] >= 0]
         added_nodes = np.arange(old_n, N)[node_aggregate[old_n:] >= 0]
         added_nodes = added_nodes[np.argsort(node_aggregate[added_nodes], kind="stable")]
-        at = np.searchsorted(node_aggregate[kept], node_aggregate[added_nodes], side="right")
+        if np.array_equal(node_aggregate[:old_n], host["aggregate"]):  # (no old node left without mass)
+            kept = host["order"]
+            at = host["offsets"][node_aggregate[added_nodes] + 1]  # (after its aggregate's old nodes)
+        else:
+            kept = host["order"][node_aggregate[host["order"]] >= 0]
+            at = np.searchsorted(node_aggregate[kept], node_aggregate[added_nodes], side="right")
         c._set_slots(e, node_aggregate, start, c_start, alive_wp, pairs, pair_offsets, pair_slots, self._bases,
                      np.insert(kept, at, added_nodes), extra, old_n)  # fmt: skip
         # the coarse matrix keeps its blocks and envelope: its buffers are reused (each refresh rewrites them)
