@@ -502,16 +502,20 @@ class Simulation:
         are), the free bodies (:class:`~warpblob.sim._rigid.RigidBodies`, their nodes given the rigid
         velocity of their momentum). Returns the (N,) mask of the free bodies' nodes."""
         e, N = self.elements, self.node_count
+        # (no rigid material, and no rigid tet marked the last time: a rebuild marks none, so none is; the
+        # passes over every tet below are skipped)
+        none = not self._rigid_ids and getattr(self, "_rigid_stats", {}).get("tets") == 0
         rigid_tets = np.zeros(e.tet_count, dtype=bool)
         if self._rigid_ids:
             rigid_tets = e.alive_host & np.isin(self._material, np.fromiter(self._rigid_ids, dtype=np.int64))
-        if not np.array_equal(rigid_tets, e.rigid_host):
+        if not none and not np.array_equal(rigid_tets, e.rigid_host):
             e.set_rigid(rigid_tets)
         self._bodies = None
         self._rigid_fixed = np.zeros(N, dtype=bool)
         free = np.zeros(N, dtype=bool)
-        stats = {"pieces": 0, "anchored": 0, "free": 0, "tets": int(rigid_tets.sum()), "nodes": 0, "free_nodes": 0}
-        if rigid_tets.any():
+        stats = {"pieces": 0, "anchored": 0, "free": 0, "tets": 0 if none else int(rigid_tets.sum()), "nodes": 0,
+                 "free_nodes": 0}  # fmt: skip
+        if not none and rigid_tets.any():
             label = node_pieces(e.tets_host[rigid_tets], N)
             nodes = label >= 0
             count = int(label.max()) + 1
