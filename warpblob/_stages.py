@@ -12,9 +12,8 @@ import warp as wp
 from ._errors import ResourceError
 from ._parallel import launch
 
-__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "clear_rows", "host_array", "device_array", "device_empty",
-           "head",
-           "column_bounds", "rows_any", "rows_all"]
+__all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "host_array", "head",
+           "device_array", "device_empty", "clear_rows", "column_bounds", "rows_any", "rows_all"]
 
 #: grid cells from which ``progress=None`` shows a bar (a job of seconds on 2 CPU cores)
 PROGRESS_CELLS = 8_000_000
@@ -185,18 +184,12 @@ def room(base: wp.array | None, n: int, dtype, device) -> tuple[wp.array, wp.arr
 
 #: per (dtype, wrapped ndim, "wrap" | "head"): the attributes of a Warp-made array of that kind, or None (slow)
 _TEMPLATES: dict = {}
-_CPU = None
-
-
-def _address(values: np.ndarray) -> int:
-    try:  # (a writable buffer's address in 1 us; ``ndarray.ctypes.data`` takes 3)
-        return ctypes.addressof(ctypes.c_char.from_buffer(values))
-    except TypeError:
-        return values.ctypes.data
-
-
 #: per Warp dtype: (numpy scalar dtype, trailing shape), or None where numpy has no such scalar
 _KINDS: dict = {}
+
+
+def _on_cpu(device) -> bool:
+    return device == "cpu" if isinstance(device, str) else device.is_cpu
 
 
 def _kind(dtype):
@@ -209,6 +202,13 @@ def _kind(dtype):
             kind = None
         _KINDS[dtype] = kind
     return kind
+
+
+def _address(values: np.ndarray) -> int:
+    try:  # (a writable buffer's address in 1 us; ``ndarray.ctypes.data`` takes 3)
+        return ctypes.addressof(ctypes.c_char.from_buffer(values))
+    except TypeError:
+        return values.ctypes.data
 
 
 def _fields(values: np.ndarray, dtype) -> dict | None:
@@ -229,24 +229,19 @@ def _fields(values: np.ndarray, dtype) -> dict | None:
             "capacity": values.nbytes, "_ref": values}  # fmt: skip
 
 
-def clear_rows(view: wp.array, start: int = 0, value: float = 0.0) -> None:
-    """Set rows ``[start, n)`` of the 1-D array ``view`` to ``value`` in every component (0: zero them).
-
-    Example:
-        >>> a = wp.array(np.arange(4, dtype=np.float32), device="cpu")
-        >>> clear_rows(a, 2); a.numpy().tolist()
-        [0.0, 1.0, 0.0, 0.0]
-    """
-    n = view.shape[0]
-    if start >= n:
-        return
-    if view.device.is_cpu:  # (numpy's fill of the rows: no Warp view of them to make)
-        view.numpy()[start:] = value
-    elif value == 0.0:
-        view[start:].zero_()
-    else:
-        rows = view[start:]
-        rows.fill_(rows.dtype(*([value] * getattr(rows.dtype, "_length_", 1))))
+def _from_template(key, fields: dict, make) -> wp.array:
+    """The array of kind ``key`` with ``fields``: from the kind's template, or, the first time, ``make()``'s
+    (Warp's own), which becomes the template where ``fields`` are its own attributes."""
+    template = _TEMPLATES.get(key, False)
+    if template:
+        out = object.__new__(wp.array)  # (wp.array.__new__ sets two attributes the template sets too)
+        out.__dict__ = {**template, **fields}
+        return out
+    made = make()
+    if template is False:
+        state = dict(vars(made))
+        _TEMPLATES[key] = {**state, "_ref": None} if {**state, **fields} == state else None
+    return made
 
 
 def host_array(values: np.ndarray, dtype) -> wp.array:
@@ -258,23 +253,26 @@ def host_array(values: np.ndarray, dtype) -> wp.array:
         >>> a.shape, a.numpy()[1].tolist()
         ((2,), [4, 5, 6, 7])
     """
-    global _CPU
     dtype = _PYTHON_TYPES.get(dtype, dtype)
     fields = _fields(values, dtype) if type(values) is np.ndarray else None
-    if fields is not None:
-        key = (dtype, len(fields["shape"]), "wrap")
-        template = _TEMPLATES.get(key, False)
-        if template:
-            out = object.__new__(wp.array)  # (wp.array.__new__ sets two attributes the template sets too)
-            out.__dict__ = {**template, **fields}
-            return out
-        if template is False:  # the first of its kind: Warp makes it, and the fast path is checked against it
-            _CPU = _CPU or wp.get_device("cpu")
-            made = wp.array(values, dtype=dtype, device=_CPU, copy=False)
-            state = dict(vars(made))
-            _TEMPLATES[key] = {**state, "_ref": None} if {**state, **fields} == state else None
-            return made
-    return wp.array(values, dtype=dtype, device="cpu", copy=False)
+    make = lambda: wp.array(values, dtype=dtype, device="cpu", copy=False)  # noqa: E731
+    if fields is None:
+        return make()
+    return _from_template((dtype, len(fields["shape"]), "wrap"), fields, make)
+
+
+def head(base: wp.array, n: int) -> wp.array:
+    """``base[:n]`` of a 1-D contiguous CPU array (Warp's slice, made in a fraction of its time); any other
+    array is sliced by Warp.
+
+    Example:
+        >>> head(wp.zeros(10, dtype=wp.float32, device="cpu"), 3).shape
+        (3,)
+    """
+    if base.ndim != 1 or not base.device.is_cpu or not base.is_contiguous or not 0 < n <= base.shape[0]:
+        return base[:n]
+    fields = {"ptr": base.ptr, "shape": (n,), "size": n, "capacity": n * base.strides[0], "_ref": base}
+    return _from_template((base.dtype, 1, "head"), fields, lambda: base[:n])
 
 
 def device_array(values, dtype, device, copy: bool = True) -> wp.array:
@@ -285,7 +283,7 @@ def device_array(values, dtype, device, copy: bool = True) -> wp.array:
         >>> device_array([1, 2, 3], wp.int32, "cpu").numpy().tolist()
         [1, 2, 3]
     """
-    if (device == "cpu") if isinstance(device, str) else device.is_cpu:
+    if _on_cpu(device):
         dtype = _PYTHON_TYPES.get(dtype, dtype)
         kind = _kind(dtype)
         np_dtype = None if kind is None else kind[0]
@@ -304,7 +302,7 @@ def device_empty(n: int, dtype, device, zero: bool = False) -> wp.array:
         >>> device_empty(3, wp.vec3, "cpu", zero=True).numpy().tolist()
         [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
     """
-    if n > 0 and ((device == "cpu") if isinstance(device, str) else device.is_cpu):
+    if n > 0 and _on_cpu(device):
         dtype = _PYTHON_TYPES.get(dtype, dtype)
         kind = _kind(dtype)
         if kind is not None:
@@ -312,28 +310,24 @@ def device_empty(n: int, dtype, device, zero: bool = False) -> wp.array:
     return (wp.zeros if zero else wp.empty)(n, dtype=dtype, device=device)
 
 
-def head(base: wp.array, n: int) -> wp.array:
-    """``base[:n]`` of a 1-D contiguous CPU array (Warp's slice, made in a fraction of its time); any other
-    array is sliced by Warp.
+def clear_rows(view: wp.array, start: int = 0, value: float = 0.0) -> None:
+    """Set rows ``[start, n)`` of the 1-D array ``view`` to ``value`` in every component (0: zero them).
 
     Example:
-        >>> head(wp.zeros(10, dtype=wp.float32, device="cpu"), 3).shape
-        (3,)
+        >>> a = wp.array(np.arange(4, dtype=np.float32), device="cpu")
+        >>> clear_rows(a, 2); a.numpy().tolist()
+        [0.0, 1.0, 0.0, 0.0]
     """
-    if base.ndim != 1 or not base.device.is_cpu or not base.is_contiguous or not 0 < n <= base.shape[0]:
-        return base[:n]
-    key = (base.dtype, 1, "head")
-    fields = {"ptr": base.ptr, "shape": (n,), "size": n, "capacity": n * base.strides[0], "_ref": base}
-    template = _TEMPLATES.get(key, False)
-    if template:
-        out = wp.array.__new__(wp.array)
-        out.__dict__ = {**template, **fields}
-        return out
-    made = base[:n]
-    if template is False:
-        state = dict(vars(made))
-        _TEMPLATES[key] = {**state, "_ref": None} if {**state, **fields} == state else None
-    return made
+    n = view.shape[0]
+    if start >= n:
+        return
+    if view.device.is_cpu:  # (numpy's fill of the rows: no Warp view of them to make)
+        view.numpy()[start:] = value
+    elif value == 0.0:
+        view[start:].zero_()
+    else:
+        rows = view[start:]
+        rows.fill_(rows.dtype(*([value] * getattr(rows.dtype, "_length_", 1))))
 
 
 def column_bounds(points) -> tuple:
