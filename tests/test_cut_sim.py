@@ -496,7 +496,7 @@ def test_the_coarse_space_follows_an_edit_that_leaves_old_nodes_without_mass(dev
     N, T = len(box.nodes), len(box.tets)
     e = Elements(box.nodes, box.tets, np.ones(T, bool), np.full(T, 1e5), np.full(T, 0.35), np.full(T, 1e3),
                  device=device)  # fmt: skip
-    ones = lambda n: wp.array(np.ones((n, 3), np.float32), dtype=wp.vec3, device=device)  # noqa: E731
+    ones = lambda n: wp.array(np.ones((n, 3), np.float32), dtype=wp.vec3, device=device)
     c0 = CoarseSpace(e, ones(N), pieces=1)
     corner = int(np.argmax(box.nodes.sum(axis=1)))  # (the box's far corner)
     kill = np.flatnonzero((box.tets == corner).any(axis=1))

@@ -255,7 +255,7 @@ def host_array(values: np.ndarray, dtype) -> wp.array:
     """
     dtype = _PYTHON_TYPES.get(dtype, dtype)
     fields = _fields(values, dtype) if type(values) is np.ndarray else None
-    make = lambda: wp.array(values, dtype=dtype, device="cpu", copy=False)  # noqa: E731
+    make = lambda: wp.array(values, dtype=dtype, device="cpu", copy=False)
     if fields is None:
         return make()
     return _from_template((dtype, len(fields["shape"]), "wrap"), fields, make)
