@@ -296,7 +296,8 @@ def device_array(values, dtype, device, copy: bool = True) -> wp.array:
 
 def device_empty(n: int, dtype, device, zero: bool = False) -> wp.array:
     """``wp.empty(n, dtype=dtype, device=device)`` (``wp.zeros`` with ``zero``); on the CPU a numpy array's
-    memory wrapped by :func:`host_array`.
+    memory wrapped by :func:`host_array` (numpy's allocator also hands back freed pages, where Warp's host
+    allocator maps, and faults in, new ones for a large array).
 
     Example:
         >>> device_empty(3, wp.vec3, "cpu", zero=True).numpy().tolist()

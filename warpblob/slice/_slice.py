@@ -38,7 +38,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import MeshError
 from .._parallel import check_threads, launch
-from .._stages import StageClock, compact, scans
+from .._stages import StageClock, compact, device_array, device_empty, scans
 from ..mesh import SurfaceMesh
 from . import _kernels
 from ._section import cap_triangles, relink_pinches
@@ -97,28 +97,6 @@ def _arrays(mesh) -> tuple[np.ndarray, ...]:
             f"slice: normals and colors must be (V, 3) like the vertices {v.shape}, got {nv.shape} and {c.shape}"
         )
     return v, f, nv, c
-
-
-def _device_array(a: np.ndarray, dtype, device) -> wp.array:
-    # on the CPU the kernels read the caller's arrays in place (they never write them)
-    return wp.array(a, dtype=dtype, device=device, copy=not device.is_cpu)
-
-
-_NUMPY = {
-    wp.int8: (np.int8, ()), wp.int32: (np.int32, ()), wp.int64: (np.int64, ()), wp.uint64: (np.uint64, ()),
-    wp.float32: (np.float32, ()), wp.float64: (np.float64, ()), wp.vec3: (np.float32, (3,)), wp.vec3i: (np.int32, (3,)),
-    wp.vec2d: (np.float64, (2,)),
-}  # fmt: skip
-
-
-def _alloc(count: int, dtype, device, zero: bool = False) -> wp.array:
-    """A new array of ``count`` items; on the CPU backed by numpy's allocator, which
-    hands back freed pages where Warp's host allocator maps (and faults in) new ones."""
-    if not device.is_cpu:
-        return (wp.zeros if zero else wp.empty)(count, dtype=dtype, device=device)
-    scalar, inner = _NUMPY[dtype]
-    data = (np.zeros if zero else np.empty)((count, *inner), dtype=scalar)
-    return wp.array(data, dtype=dtype, device=device, copy=False)
 
 
 _TABLES: dict = {}
@@ -276,16 +254,16 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     if n_v == 0 or n_f == 0:
         return _empty(dict(stats)), _empty(dict(stats))
     lap = clock.lap
-    positions = _device_array(vertices, wp.vec3, dev)
-    triangles = _device_array(faces, wp.vec3i, dev)
+    positions = device_array(vertices, wp.vec3, dev, copy=dev.is_cuda)
+    triangles = device_array(faces, wp.vec3i, dev, copy=dev.is_cuda)
     origin_d, normal_d = wp.vec3d(*o), wp.vec3d(*n)
     vb = -(-n_v // _kernels.BLOCK)
     fb = -(-n_f // _kernels.BLOCK)
 
     # 1. distances and the box that sizes the snap distance
-    distances = _alloc(n_v, wp.float32, dev)
-    lower, upper = _alloc(vb, wp.vec3, dev), _alloc(vb, wp.vec3, dev)
-    vbad = _alloc(vb, wp.int32, dev)
+    distances = device_empty(n_v, wp.float32, dev)
+    lower, upper = device_empty(vb, wp.vec3, dev), device_empty(vb, wp.vec3, dev)
+    vbad = device_empty(vb, wp.int32, dev)
     launch(
         _kernels.distance_kernel, vb, [positions, origin_d, normal_d], [distances, lower, upper, vbad], dev, threads, 1
     )
@@ -297,15 +275,15 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     eps = snap * diagonal
 
     # 2. classify faces, count the output of each block
-    codes = _alloc(n_f, wp.int8, dev)
-    counts = [_alloc(fb, wp.int32, dev) for _ in range(4)]
-    used_below, used_above = _alloc(n_v, wp.int8, dev, zero=True), _alloc(n_v, wp.int8, dev, zero=True)
-    prints, fbad = _alloc(fb, wp.uint64, dev), _alloc(fb, wp.int32, dev)
+    codes = device_empty(n_f, wp.int8, dev)
+    counts = [device_empty(fb, wp.int32, dev) for _ in range(4)]
+    used_below, used_above = device_empty(n_v, wp.int8, dev, zero=True), device_empty(n_v, wp.int8, dev, zero=True)
+    prints, fbad = device_empty(fb, wp.uint64, dev), device_empty(fb, wp.int32, dev)
     launch(
         _kernels.classify_kernel, fb, [triangles, distances, positions, _table(dev), normal_d, eps],
         [codes, *counts, used_below, used_above, prints, fbad], dev, threads, 1,
     )  # fmt: skip
-    keep_counts = [_alloc(vb, wp.int32, dev) for _ in range(3)]
+    keep_counts = [device_empty(vb, wp.int32, dev) for _ in range(3)]
     launch(_kernels.keep_count_kernel, vb, [distances, used_below, used_above, eps], keep_counts, dev, threads, 1)
     # host sync: every count of the stage, and the checks
     offsets, totals = scans(*counts, *keep_counts[:2])
@@ -324,9 +302,9 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     # 3. section segments: one per cut face; with caps, in-plane edges whose faces lie on both sides
     records = cap and n_records > 0
     room = n_segments + (n_records // 2 + 1 if records else 0)
-    starts, ends = _alloc(room, wp.int64, dev), _alloc(room, wp.int64, dev)
-    record_keys = _alloc(2 * n_records if records else 0, wp.int64, dev)
-    record_edges = _alloc(n_records if records else 0, wp.vec3i, dev)
+    starts, ends = device_empty(room, wp.int64, dev), device_empty(room, wp.int64, dev)
+    record_keys = device_empty(2 * n_records if records else 0, wp.int64, dev)
+    record_edges = device_empty(n_records if records else 0, wp.vec3i, dev)
     launch(
         _kernels.section_kernel, fb,
         [triangles, codes, distances, eps, counts[2], segment_offsets, counts[3], record_offsets, int(records)],
@@ -336,7 +314,7 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
         order = wp.array(np.arange(2 * n_records, dtype=np.int32), device=dev)
         wp.utils.radix_sort_pairs(record_keys, order, n_records)
         n_pairs = (n_records + 1) // 2
-        boundary = _alloc(n_pairs, wp.int32, dev)
+        boundary = device_empty(n_pairs, wp.int32, dev)
         pair_bad = wp.full(1, _NONE, dtype=wp.int32, device=dev)
         launch(
             _kernels.plane_edge_kernel, n_pairs, [record_keys, order, record_edges, n_records], [boundary, pair_bad],
@@ -356,16 +334,16 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
 
     # 4. section points: segment ends sorted by key, one point per key
     s = n_segments
-    keys, values = _alloc(4 * s, wp.int64, dev), _alloc(4 * s, wp.int32, dev)
+    keys, values = device_empty(4 * s, wp.int64, dev), device_empty(4 * s, wp.int32, dev)
     launch(_kernels.endpoint_kernel, s, [_head(starts, s), _head(ends, s)], [keys, values], dev, threads, _SMALL)
     wp.utils.radix_sort_pairs(keys, values, 2 * s)
-    flags = [_alloc(2 * s, wp.int32, dev) for _ in range(3)]
+    flags = [device_empty(2 * s, wp.int32, dev) for _ in range(3)]
     launch(_kernels.point_heads_kernel, 2 * s, [_head(keys, 2 * s), values, n_v, s], flags, dev, threads, _SMALL)
     # host sync: the point counts size the point arrays and the new vertices
     (head_offsets, crossing_offsets, start_offsets), (n_points, n_crossing, _) = scans(*flags)
-    start_point, end_point = _alloc(s, wp.int32, dev), _alloc(s, wp.int32, dev)
-    point_keys, crossing_rank = _alloc(n_points, wp.int64, dev), _alloc(n_points, wp.int32, dev)
-    start_order, end_order = _alloc(s, wp.int32, dev), _alloc(s, wp.int32, dev)
+    start_point, end_point = device_empty(s, wp.int32, dev), device_empty(s, wp.int32, dev)
+    point_keys, crossing_rank = device_empty(n_points, wp.int64, dev), device_empty(n_points, wp.int32, dev)
+    start_order, end_order = device_empty(s, wp.int32, dev), device_empty(s, wp.int32, dev)
     launch(
         _kernels.point_ids_kernel, 2 * s,
         [keys, values, flags[0], head_offsets, flags[1], crossing_offsets, start_offsets, s],
@@ -373,12 +351,12 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     )  # fmt: skip
     n_out_below, n_out_above = kept_below + n_crossing, kept_above + n_crossing
     out = {
-        side: [_alloc(count, wp.vec3, dev) for _ in range(3)]
+        side: [device_empty(count, wp.vec3, dev) for _ in range(3)]
         for side, count in (("below", n_out_below), ("above", n_out_above))
     }
     u, v = _axes(n)
-    coords = _alloc(n_points, wp.vec2d, dev)
-    normals_d, colors_d = _device_array(normals, wp.vec3, dev), _device_array(colors, wp.vec3, dev)
+    coords = device_empty(n_points, wp.vec2d, dev)
+    normals_d, colors_d = device_array(normals, wp.vec3, dev, copy=dev.is_cuda), device_array(colors, wp.vec3, dev, copy=dev.is_cuda)
     launch(
         _kernels.point_kernel, n_points,
         [point_keys, crossing_rank, positions, normals_d, colors_d, origin_d, normal_d, wp.vec3d(*u), wp.vec3d(*v),
@@ -391,7 +369,7 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     cap_points = np.zeros((0, 3), dtype=np.int64)
     facts = {"section_loops": 0, "section_holes": 0, "cap_area": 0.0}
     if cap and s:
-        previous = _alloc(s, wp.int32, dev)
+        previous = device_empty(s, wp.int32, dev)
         link_bad = wp.full(1, _NONE, dtype=wp.int32, device=dev)
         pinched = wp.zeros(1, dtype=wp.int32, device=dev)
         launch(
@@ -413,8 +391,8 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
                 )
             )
         label = wp.array(np.arange(s, dtype=np.int32), device=dev)
-        distance = _alloc(s, wp.int32, dev, zero=True)
-        spare = [_alloc(s, wp.int32, dev) for _ in range(3)]
+        distance = device_empty(s, wp.int32, dev, zero=True)
+        spare = [device_empty(s, wp.int32, dev) for _ in range(3)]
         step = 1
         while step < s:
             launch(_kernels.jump_kernel, s, [previous, label, distance, step], spare, dev, threads, _SMALL)
@@ -432,23 +410,23 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
         lap("caps")
 
     # 6. the halves: kept vertices, cut faces, caps
-    maps = [_alloc(n_v, wp.int32, dev) for _ in range(2)]
+    maps = [device_empty(n_v, wp.int32, dev) for _ in range(2)]
     launch(
         _kernels.keep_kernel, vb,
         [distances, used_below, used_above, positions, normals_d, colors_d, eps, keep_below_offsets,
          keep_above_offsets],
         [*maps, *out["below"], *out["above"]], dev, threads, 1,
     )  # fmt: skip
-    faces_below = _alloc(n_below + len(cap_points), wp.vec3i, dev)
-    faces_above = _alloc(n_above + len(cap_points), wp.vec3i, dev)
-    sources = [_alloc(count if old_caps is not None else 0, wp.int32, dev) for count in (n_below, n_above)]
+    faces_below = device_empty(n_below + len(cap_points), wp.vec3i, dev)
+    faces_above = device_empty(n_above + len(cap_points), wp.vec3i, dev)
+    sources = [device_empty(count if old_caps is not None else 0, wp.int32, dev) for count in (n_below, n_above)]
     launch(
         _kernels.face_kernel, fb,
         [triangles, codes, positions, below_offsets, above_offsets, segment_offsets, *maps, start_point, end_point,
          crossing_rank, kept_below, kept_above, out["below"][0], int(old_caps is not None)],
         [faces_below, faces_above, *sources], dev, threads, 1,
     )  # fmt: skip
-    point_index = [_alloc(n_points, wp.int32, dev) for _ in range(2)]
+    point_index = [device_empty(n_points, wp.int32, dev) for _ in range(2)]
     launch(
         _kernels.point_index_kernel, n_points, [point_keys, crossing_rank, *maps, kept_below, kept_above],
         point_index, dev, threads, _SMALL,
