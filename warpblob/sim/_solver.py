@@ -278,8 +278,10 @@ class ImplicitSolver:
         preconditioner: ``"two_level"`` (block-Jacobi plus the coarse correction of
             :mod:`warpblob.sim._coarse`) or ``"block_jacobi"``; both linear solvers use it.
         pieces: the number of pieces the live tets are known to form, or None (:class:`CoarseSpace`).
-        previous: the solver this one replaces after a topology change (None: the first): its per-corner
-            buffer is kept where it has room.
+        previous: the solver this one replaces after a topology change (None: the first): its per-node and
+            per-corner buffers are kept where they have room, and its recorded launches rebound; of the
+            per-node ones, those a step writes before reading (``_WRITTEN``) keep their old rows, the
+            contact arrays theirs while they are zero (``contact_zero``), and the rest are cleared.
         sources: with ``previous``, carry its coarse space over an edit that only killed and appended tets
             and appended nodes made from the old nodes ``sources`` ((K,) ints; :meth:`CoarseSpace.follow`)
             instead of building a new one (which it falls back to where follow declines).
