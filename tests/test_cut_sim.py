@@ -232,6 +232,58 @@ def test_a_rebuild_clears_the_contact_arrays_a_contact_pass_wrote():
         blade = blade + (0, 0.125, 0)
 
 
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_the_ring_spread_follows_cuts_bit_for_bit(k):
+    """The contact's k-ring spread followed over a cut's rebuild (ring_spread_after: the rows within 2 k of the
+    changed tets' corners found again, the rest copied) equals the spread made anew, offsets, nodes, weights
+    and sums bit for bit, over five random strokes (new nodes, dead tets, pieces coming apart)."""
+    from warpblob.sim._contact import _ring_spread, ring_spread_after
+
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (10, 5, 5))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 0] == 0.0)
+    e = sim.elements
+    rng = np.random.default_rng(k)
+    for _ in range(5):
+        before = _ring_spread(e.tets_host, e.alive_host & (e.volume.numpy() > 0), e.node_count, k)
+        a = np.array([rng.uniform(0.05, 0.6), rng.uniform(0.05, 0.45), 0.7])
+        blade = np.stack([a, a + (rng.uniform(0.1, 0.4), rng.uniform(-0.1, 0.1), 0.0)])
+        r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, rng.uniform(0.2, 0.7))), collect=False)
+        sim.apply_cut(r)
+        live = e.alive_host & (e.volume.numpy() > 0)
+        fresh = _ring_spread(e.tets_host, live, e.node_count, k)
+        followed = ring_spread_after(before, e.tets_host, live, e.node_count, k, e.touched_nodes, e.incidence())
+        for a_, b_ in zip(fresh, followed):
+            assert a_.dtype == b_.dtype
+            np.testing.assert_array_equal(a_, b_)
+    assert e.node_count > len(box.nodes)
+
+
+def test_a_contact_follows_a_cut_and_binds_anew_after_any_other_edit():
+    """A simulation with a contact tool: after a cut's rebuild the contact's spread is followed from the one
+    before (and equals one made anew); after a rebuild of every tet it is made anew (the same spread)."""
+    from warpblob.sim._contact import _ring_spread
+    from warpblob.tools import Path, Probe
+
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 2] == 0.0,
+                        gravity=(0, 0, 0), model=wb.Box((0, 0, 0), (1.0, 0.5, 0.5), 0.05))  # fmt: skip
+    sim.add_tool(Probe(0.1), Path.line((0.5, 0.25, 0.7), (0.5, 0.25, 0.6), 0.05), stiffness=1e6, kring=2)
+    contact = sim._contact
+    blade = np.array([[0.05, 0.19, 0.7], [0.3, 0.19, 0.7]])
+    r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, 0.3)), collect=False)
+    sim.apply_cut(r)
+    assert contact._follow is not None and 2 in contact._rings_before
+    e = sim.elements
+    fresh = _ring_spread(e.tets_host, e.alive_host & (e.volume.numpy() > 0), e.node_count, 2)
+    for a_, b_ in zip(fresh, contact._rings[2]):
+        np.testing.assert_array_equal(a_, b_)
+    sim.rebuild()  # (every tet: every node touched)
+    for a_, b_ in zip(fresh, contact._rings[2]):
+        np.testing.assert_array_equal(a_, b_)
+
+
 def test_element_pass_after_a_cut_is_the_full_pass():
     """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
     array equals a full pass at the same positions, bit for bit."""

@@ -162,21 +162,40 @@ def ring_spread(tets: np.ndarray, alive: np.ndarray, node_count: int, k: int):
     node's force is spread without loss. Rings are symmetric, so row ``c``
     also lists the nodes ``c`` spreads to. Breadth-first search over all
     nodes at once (vectorized numpy: a set-up cost, paid again only when the
-    topology changes).
+    topology changes; :func:`ring_spread_after` follows a local edit).
     """
+    return _ring_spread(tets, alive, node_count, k)[:3]
+
+
+def _ring_spread(tets, alive, node_count: int, k: int) -> tuple:
+    """:func:`ring_spread` and the (N,) float64 sums ``Z``."""
     N = int(node_count)
     if k == 0:
         nodes = np.arange(N, dtype=np.int32)
-        return np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32)
+        return np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32), np.ones(N)
     live = np.asarray(tets)[np.asarray(alive, dtype=bool)].astype(np.int64)
+    keys, rings = _rings(_adjacency(live, N), np.arange(N, dtype=np.int64), N, k)
+    rows, cols = keys // N, keys % N
+    w = (k + 1 - rings) / (k + 1)
+    total = np.bincount(rows, weights=w, minlength=N)
+    offsets = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
+    return offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32), total
+
+
+def _adjacency(live: np.ndarray, N: int) -> tuple:
+    """The edges of the (L, 4) int64 tets ``live`` as a CSR over ``N`` nodes: ``(offsets (N + 1,), columns)``."""
     pairs = live[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
     keys = _unique(np.concatenate([pairs[:, 0] * N + pairs[:, 1], pairs[:, 1] * N + pairs[:, 0]]))
-    adj_rows, adj_cols = keys // N, keys % N
-    adj_offsets = np.searchsorted(adj_rows, np.arange(N + 1))
+    return np.searchsorted(keys // N, np.arange(N + 1)), keys % N
+
+
+def _rings(adjacency: tuple, sources: np.ndarray, N: int, k: int) -> tuple:
+    """Breadth-first rings from every node of ``sources`` (ascending int64) at once, up to ``k``: ``(keys,
+    rings)``, ``keys = source * N + node`` ascending and each one's ring."""
+    adj_offsets, adj_cols = adjacency
     degree = np.diff(adj_offsets)
-    nodes = np.arange(N, dtype=np.int64)
-    seen = nodes * N + nodes
-    found = [(seen, np.zeros(N, dtype=np.int64))]
+    seen = sources * N + sources
+    found = [(seen, np.zeros(len(seen), dtype=np.int64))]
     frontier = seen
     for ring in range(1, k + 1):
         source, node = frontier // N, frontier % N
@@ -193,12 +212,74 @@ def ring_spread(tets: np.ndarray, alive: np.ndarray, node_count: int, k: int):
     keys = np.concatenate([f[0] for f in found])
     rings = np.concatenate([f[1] for f in found])
     order = np.argsort(keys, kind="stable")
-    keys, rings = keys[order], rings[order]
+    return keys[order], rings[order]
+
+
+def ring_spread_after(previous: tuple, tets: np.ndarray, alive: np.ndarray, node_count: int, k: int,
+                      touched: np.ndarray, incidence: tuple) -> tuple:  # fmt: skip
+    """:func:`_ring_spread` after an edit that changed only tets whose corners (old and new, and every added
+    node) are ``touched``, from ``previous`` (its result before the edit), recomputing only what can change.
+
+    The edit changes edges between touched nodes only, so a ring distance changes only along a path through
+    them: the rows of the nodes within ``k`` edges of them, and the sums ``Z`` of those, whose change reaches
+    the rows within ``2 k``. Those rows are found again by the same search, from those nodes only, over the
+    live tets round them (``incidence``: the live tets' :meth:`~warpblob.sim._elements.Elements.incidence`);
+    every other row is copied. The result is :func:`_ring_spread`'s, bit for bit (the sums are taken in the
+    same order).
+    """
+    N = int(node_count)
+    old_offsets, old_nodes, old_weights, old_total = previous
+    n_old = len(old_offsets) - 1
+    if k == 0 or n_old > N or 8 * len(touched) > N:  # (an edit of much of the mesh: made anew)
+        return _ring_spread(tets, alive, N, k)
+    tets = np.asarray(tets)
+    alive = np.asarray(alive, dtype=bool)
+    inc_offsets, inc_corners = incidence
+
+    def tets_of(nodes):  # the live tets at ``nodes``, ascending
+        count = inc_offsets[nodes + 1] - inc_offsets[nodes]
+        start = np.repeat(inc_offsets[nodes] - (np.cumsum(count) - count), count)
+        t = _unique(inc_corners[start + np.arange(int(count.sum()))] // 4)
+        return t[alive[t]]
+
+    # the nodes by edge distance from the touched ones, up to 3 k - 1 (a ring of the rows within 2 k)
+    within = np.zeros(N, dtype=bool)
+    level = np.unique(np.asarray(touched, dtype=np.int64))
+    within[level] = True
+    levels = [level]
+    for _ in range(3 * k - 1):
+        near = _unique(tets[tets_of(level)].ravel().astype(np.int64))
+        level = near[~within[near]]
+        within[level] = True
+        levels.append(level)
+    redo = np.sort(np.concatenate(levels[: 2 * k + 1]))
+    local = tets[tets_of(np.concatenate(levels))].astype(np.int64)
+    keys, rings = _rings(_adjacency(local, N), redo, N, k)
     rows, cols = keys // N, keys % N
     w = (k + 1 - rings) / (k + 1)
-    total = np.bincount(rows, weights=w, minlength=N)
-    offsets = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
-    return offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32)
+    total = np.zeros(N)
+    total[:n_old] = old_total
+    total[redo] = np.bincount(rows, weights=w, minlength=N)[redo]
+    # the rows spliced: the old ones where they stand, the redone ones from the search
+    count = np.zeros(N, dtype=np.int64)
+    count[:n_old] = np.diff(old_offsets)
+    count[redo] = np.bincount(rows, minlength=N)[redo]
+    offsets = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(count, out=offsets[1:])
+    nodes = np.empty(int(offsets[-1]), dtype=np.int32)
+    weights = np.empty(int(offsets[-1]), dtype=np.float32)
+    kept = np.ones(n_old, dtype=bool)
+    kept[redo[redo < n_old]] = False
+    kept = np.flatnonzero(kept)
+    n = count[kept]
+    src = np.repeat(old_offsets[kept].astype(np.int64) - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))
+    dst = np.repeat(offsets[kept] - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))
+    nodes[dst], weights[dst] = old_nodes[src], old_weights[src]
+    first = np.searchsorted(rows, rows)  # (each entry's row starts at its first entry: rows ascend)
+    at = offsets[rows] + np.arange(len(rows)) - first
+    nodes[at] = cols
+    weights[at] = (w / total[cols]).astype(np.float32)
+    return offsets.astype(np.int32), nodes, weights, total
 
 
 @dataclass(frozen=True, eq=False)
@@ -304,6 +385,14 @@ class Contact:
         # the nearest-node search sees the layer's nodes only (the others get boxes far away)
         self._layer_mass = wp.array(np.where(layer_nodes, e.mass.numpy(), 0.0).astype(np.float32), dtype=float,
                                     device=self.device)  # fmt: skip
+        # the k-ring spreads, made on first use; after a local edit (a cut's rebuild: the element data's next
+        # revision, with its touched nodes) followed from the ones before it rather than made anew
+        rings = getattr(self, "_rings", {})
+        local = (e is getattr(self, "_bound", (None, 0))[0] and e.revision == self._bound[1] + 1
+                 and e.touched_nodes is not None)  # fmt: skip
+        self._rings_before = rings if local else {}
+        self._follow = e.touched_nodes if local else None
+        self._bound = (e, e.revision)
         self._rings: dict[int, tuple] = {}
         self._tet_bvh = None
         self._node_bvh = None
@@ -325,9 +414,17 @@ class Contact:
         return record
 
     def _ring(self, k: int) -> tuple:
+        """The k-ring spread (:func:`ring_spread`, with its sums), followed over the last rebuild from the one
+        before it where that was a local edit of the element data this contact was bound to (:meth:`bind`)."""
         if k not in self._rings:
             e = self.elements
-            self._rings[k] = ring_spread(e.tets_host, e.alive_host & (e.volume.numpy() > 0), e.node_count, k)
+            live = e.alive_host & (e.volume.numpy() > 0)
+            before = self._rings_before.get(k)
+            if before is not None and self._follow is not None:
+                self._rings[k] = ring_spread_after(before, e.tets_host, live, e.node_count, k, self._follow,
+                                                   e.incidence())  # fmt: skip
+            else:
+                self._rings[k] = _ring_spread(e.tets_host, live, e.node_count, k)
         return self._rings[k]
 
     def _build_buffers(self) -> None:

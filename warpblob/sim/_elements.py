@@ -189,7 +189,7 @@ class Elements:
     ``touched_nodes``: (K,) int32 the nodes whose incidence the last
     :meth:`rebuild` changed (the corners of the changed tets that were live
     before it or are live after it, and every new node), or None after a
-    rebuild of every tet.
+    rebuild of every tet; ``revision`` counts the rebuilds (0: as made).
     """
 
     def __init__(self, rest, tets, alive, young, poisson, density, *, device, threads=None):
@@ -529,6 +529,7 @@ class Elements:
         self._bases["mass"], self.mass = room(base, N, float, dev)
         gather = [self.node_range, self.node_corners, self.volume, self.density]
         self.touched_nodes = None if touched is None or not old_n else touched.astype(np.int32)
+        self.revision = getattr(self, "revision", -1) + 1
         if self.touched_nodes is None:
             # (a light kernel: pieces of 2^15 nodes, not the launcher's default, whose many small pieces cost
             # more in launches than the gather)
