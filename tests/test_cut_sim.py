@@ -284,6 +284,39 @@ def test_a_contact_follows_a_cut_and_binds_anew_after_any_other_edit():
         np.testing.assert_array_equal(a_, b_)
 
 
+def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
+    """Five random strokes through a simulation with a contact tool: after each rebuild the contact's
+    boundary flags, boundary layer and k-ring spread, followed from the ones before, equal those a new bind
+    makes (the surface faces of the live tets, the tets with a node on them, the spread made anew)."""
+    from warpblob.mesh import TetMesh
+    from warpblob.sim._contact import _ring_spread
+    from warpblob.tools import Path, Probe
+
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (10, 5, 5))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 2] == 0.0,
+                        gravity=(0, 0, 0), model=wb.Box((0, 0, 0), (1.0, 0.5, 0.5), 0.05))  # fmt: skip
+    sim.add_tool(Probe(0.1), Path.line((0.5, 0.25, 0.7), (0.5, 0.25, 0.6), 0.05), stiffness=1e6, kring=2)
+    contact = sim._contact
+    rng = np.random.default_rng(7)
+    for _ in range(5):
+        a = np.array([rng.uniform(0.05, 0.6), rng.uniform(0.05, 0.45), 0.7])
+        blade = np.stack([a, a + (rng.uniform(0.1, 0.4), rng.uniform(-0.1, 0.1), 0.0)])
+        r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, rng.uniform(0.2, 0.7))), collect=False)
+        sim.apply_cut(r)
+        assert contact._follow is not None
+        e = sim.elements
+        live = e.alive_host & (e.volume.numpy() > 0)
+        t = e.tets_host[live]
+        near = np.zeros(e.node_count, dtype=bool)
+        near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
+        np.testing.assert_array_equal(contact._near, near)
+        np.testing.assert_array_equal(contact._layer.numpy(), np.flatnonzero(live)[near[t].any(axis=1)])
+        for a_, b_ in zip(_ring_spread(e.tets_host, live, e.node_count, 2), contact._rings[2]):
+            np.testing.assert_array_equal(a_, b_)
+    assert e.node_count > len(box.nodes)
+
+
 def test_element_pass_after_a_cut_is_the_full_pass():
     """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
     array equals a full pass at the same positions, bit for bit."""

@@ -90,6 +90,7 @@ import warp as wp
 
 from .._errors import SimulationError, ToolError
 from .._linearize import linearize
+from .._stages import rows_any
 from ..field import evaluate
 from ..mesh import TetMesh
 from ..tools import Path, Tool
@@ -371,11 +372,20 @@ class Contact:
         edges = e.rest_host[t[:, [1, 2, 3, 2, 3, 3]]] - e.rest_host[t[:, [0, 0, 0, 1, 1, 2]]]
         self.edge = float(np.median(np.linalg.norm(edges, axis=2)))
         self.band = BAND * self.edge
+        # a local edit (a cut's rebuild: the element data's next revision, with its touched nodes) is followed
+        # from the state before it where that can be done exactly; anything else is bound anew
+        local = (e is getattr(self, "_bound", (None, 0))[0] and e.revision == self._bound[1] + 1
+                 and e.touched_nodes is not None)  # fmt: skip
         # the boundary layer: the tets with a node on the boundary
-        near = np.zeros(e.node_count, dtype=bool)
-        near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
-        live_ids = np.flatnonzero(live)
-        layer = live_ids[near[t].any(axis=1)].astype(np.int32)
+        if local and len(self._near) <= e.node_count and len(self._layer_mask) <= e.tet_count:
+            near, mask = self._layer_after(live, e.touched_nodes)
+        else:
+            near = np.zeros(e.node_count, dtype=bool)
+            near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
+            mask = np.zeros(e.tet_count, dtype=bool)
+            mask[live] = rows_any(near[t])
+        self._near, self._layer_mask = near, mask
+        layer = np.flatnonzero(mask).astype(np.int32)
         self._layer = wp.array(layer, dtype=wp.int32, device=self.device)
         self._layer_tets = wp.array(e.tets_host[layer], dtype=wp.vec4i, device=self.device)
         self._layer_volume = wp.array(e.volume.numpy()[layer], dtype=float, device=self.device)
@@ -385,11 +395,8 @@ class Contact:
         # the nearest-node search sees the layer's nodes only (the others get boxes far away)
         self._layer_mass = wp.array(np.where(layer_nodes, e.mass.numpy(), 0.0).astype(np.float32), dtype=float,
                                     device=self.device)  # fmt: skip
-        # the k-ring spreads, made on first use; after a local edit (a cut's rebuild: the element data's next
-        # revision, with its touched nodes) followed from the ones before it rather than made anew
+        # the k-ring spreads, made on first use; after a local edit followed from the ones before it
         rings = getattr(self, "_rings", {})
-        local = (e is getattr(self, "_bound", (None, 0))[0] and e.revision == self._bound[1] + 1
-                 and e.touched_nodes is not None)  # fmt: skip
         self._rings_before = rings if local else {}
         self._follow = e.touched_nodes if local else None
         self._bound = (e, e.revision)
@@ -397,6 +404,44 @@ class Contact:
         self._tet_bvh = None
         self._node_bvh = None
         self._build_buffers()
+
+    def _layer_after(self, live: np.ndarray, touched: np.ndarray) -> tuple:
+        """The boundary flags (N,) and the layer's mask (T,) after a local edit, from those before it.
+
+        A face changes sides (boundary or inner) only where a tet that holds it changed, and all its corners
+        are then ``touched``; so only the touched nodes' flags can change, each found from the faces at it
+        (a face at a node is held only by tets at that node: the live tets at the touched nodes count every
+        such face fully), and only the tets at them, or that died, change their place in the layer.
+        """
+        e = self.elements
+        N, T = e.node_count, e.tet_count
+        near = np.zeros(N, dtype=bool)
+        near[: len(self._near)] = self._near
+        mask = np.zeros(T, dtype=bool)
+        mask[: len(self._layer_mask)] = self._layer_mask
+        mask &= live
+        touched = np.asarray(touched, dtype=np.int64)
+        offsets, corners = e.incidence()
+        count = offsets[touched + 1] - offsets[touched]
+        start = np.repeat(offsets[touched] - (np.cumsum(count) - count), count)
+        around = _unique(corners[start + np.arange(int(count.sum()))] // 4)
+        around = around[live[around]]
+        faces = np.sort(e.tets_host[around].astype(np.int64)[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]], axis=2)
+        keys = ((faces[..., 0] * N + faces[..., 1]) * N + faces[..., 2]).ravel()
+        order = np.argsort(keys, kind="stable")
+        ks = keys[order]
+        single = np.ones(len(ks), dtype=bool)
+        same = ks[1:] == ks[:-1]
+        single[1:] &= ~same
+        single[:-1] &= ~same
+        at = np.zeros(N, dtype=bool)
+        at[touched] = True
+        boundary = faces.reshape(-1, 3)[order[single]]
+        boundary = boundary[rows_any(at[boundary])]  # (a face at a touched node is counted fully)
+        near[touched] = False
+        near[boundary.ravel()] = True
+        mask[around] = rows_any(near[e.tets_host[around]])
+        return near, mask
 
     def add(self, tool, path, *, stiffness, kring, contact, spacing=None) -> ToolContact:
         """Check and sample a tool (:meth:`~warpblob.Simulation.add_tool` says what the arguments are)."""
