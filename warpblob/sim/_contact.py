@@ -146,6 +146,13 @@ def sample_areas(tool: Tool, points: np.ndarray) -> np.ndarray:
     return (on * np.where(count > 0, 0.5 * twice / np.maximum(count, 1), 0.0)).sum(axis=1)
 
 
+def _edge_lengths(rest: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """(K, 6) float32 edge lengths of the (K, 4) ``tets`` (each length computed on its own: the same bits
+    whatever the batch)."""
+    edges = rest[tets[:, [1, 2, 3, 2, 3, 3]]] - rest[tets[:, [0, 0, 0, 1, 1, 2]]]
+    return np.linalg.norm(edges, axis=2)
+
+
 def _unique(keys: np.ndarray) -> np.ndarray:
     """Sorted distinct ``keys`` by a sort (numpy's hashing ``np.unique`` is several times slower on these)."""
     keys = np.sort(keys)
@@ -368,23 +375,29 @@ class Contact:
         live = e.alive_host & (e.volume.numpy() > 0)
         if not live.any():
             raise SimulationError("contact: the volume has no live tet")
-        t = e.tets_host[live]
-        edges = e.rest_host[t[:, [1, 2, 3, 2, 3, 3]]] - e.rest_host[t[:, [0, 0, 0, 1, 1, 2]]]
-        self.edge = float(np.median(np.linalg.norm(edges, axis=2)))
-        self.band = BAND * self.edge
         # a local edit (a cut's rebuild: the element data's next revision, with its touched nodes) is followed
         # from the state before it where that can be done exactly; anything else is bound anew
         local = (e is getattr(self, "_bound", (None, 0))[0] and e.revision == self._bound[1] + 1
-                 and e.touched_nodes is not None)  # fmt: skip
-        # the boundary layer: the tets with a node on the boundary
-        if local and len(self._near) <= e.node_count and len(self._layer_mask) <= e.tet_count:
-            near, mask = self._layer_after(live, e.touched_nodes)
+                 and e.touched_nodes is not None and len(self._near) <= e.node_count
+                 and len(self._layer_mask) <= e.tet_count)  # fmt: skip
+        # the boundary layer (the tets with a node on the boundary) and every tet's edge lengths (T, 6)
+        if local:
+            near, mask, around = self._layer_after(live, e.touched_nodes)
+            lengths = np.empty((e.tet_count, 6), dtype=np.float32)
+            lengths[: len(self._lengths)] = self._lengths
+            redo = np.union1d(around, np.arange(len(self._lengths), e.tet_count))
+            lengths[redo] = _edge_lengths(e.rest_host, e.tets_host[redo])
         else:
+            t = e.tets_host[live]
             near = np.zeros(e.node_count, dtype=bool)
             near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
             mask = np.zeros(e.tet_count, dtype=bool)
             mask[live] = rows_any(near[t])
-        self._near, self._layer_mask = near, mask
+            lengths = _edge_lengths(e.rest_host, e.tets_host)
+        self._near, self._layer_mask, self._lengths = near, mask, lengths
+        # (a tet's rows are its own: the median of the live tets' edges as one pass over them gives it)
+        self.edge = float(np.median(lengths[live]))
+        self.band = BAND * self.edge
         layer = np.flatnonzero(mask).astype(np.int32)
         self._layer = wp.array(layer, dtype=wp.int32, device=self.device)
         self._layer_tets = wp.array(e.tets_host[layer], dtype=wp.vec4i, device=self.device)
@@ -406,7 +419,8 @@ class Contact:
         self._build_buffers()
 
     def _layer_after(self, live: np.ndarray, touched: np.ndarray) -> tuple:
-        """The boundary flags (N,) and the layer's mask (T,) after a local edit, from those before it.
+        """The boundary flags (N,), the layer's mask (T,) and the live tets at the touched nodes after a local
+        edit, from those before it.
 
         A face changes sides (boundary or inner) only where a tet that holds it changed, and all its corners
         are then ``touched``; so only the touched nodes' flags can change, each found from the faces at it
@@ -441,7 +455,7 @@ class Contact:
         near[touched] = False
         near[boundary.ravel()] = True
         mask[around] = rows_any(near[e.tets_host[around]])
-        return near, mask
+        return near, mask, around
 
     def add(self, tool, path, *, stiffness, kring, contact, spacing=None) -> ToolContact:
         """Check and sample a tool (:meth:`~warpblob.Simulation.add_tool` says what the arguments are)."""
