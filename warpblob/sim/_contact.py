@@ -49,7 +49,10 @@ the default) the field is carried by the deformation instead:
    a node ``r`` edges away gets the weight ``(k + 1 - r) / (k + 1)`` (1, 2/3,
    1/3 for ``k = 2``), normalized over the ring so that the force is kept.
    The CSR of the spread is built once per topology (:func:`ring_spread`) and
-   applied by a gather kernel.
+   applied by a gather kernel; after a cut's rebuild it, the boundary layer
+   and the median edge follow the edit round its touched nodes
+   (:func:`ring_spread_after`, :meth:`Contact.bind`), the same arrays, bit
+   for bit, as a bind anew.
 
 ``contact="nearest"`` is the thesis' variant, for comparison: the rest field
 at the sample's world position (no deformation map), the force at the
