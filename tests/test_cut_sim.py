@@ -202,19 +202,29 @@ def test_the_rows_a_rebuild_keeps_are_written_before_they_are_read():
     assert np.isfinite(clean.positions).all() and np.abs(clean.velocities).max() > 0
 
 
-def test_a_rebuild_clears_the_contact_arrays_a_contact_pass_wrote():
-    """The contact arrays are zero after a rebuild, as a new solver's are: cleared whole when a contact pass
-    wrote them since they were last cleared, else only their added rows set (``contact_zero`` says which)."""
+def _box_with_probe(cells, path=None):
+    """A box (1 x 0.5 x 0.5) on a TetStructure, simulated held at its floor without gravity, with a probe of
+    stiffness 1e6 on ``path`` (default: from above its middle, down)."""
     from warpblob.tools import Path, Probe
 
-    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (16, 8, 8))
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), cells)
     s = TetStructure.from_tetmesh(box)
     sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 2] == 0.0,
                         gravity=(0, 0, 0), model=wb.Box((0, 0, 0), (1.0, 0.5, 0.5), 0.05))  # fmt: skip
-    assert sim._solver.contact_zero
+    path = Path.line((0.5, 0.25, 0.7), (0.5, 0.25, 0.6), 0.05) if path is None else path
+    sim.add_tool(Probe(0.1), path, stiffness=1e6, kring=2)
+    return box, s, sim
+
+
+def test_a_rebuild_clears_the_contact_arrays_a_contact_pass_wrote():
+    """The contact arrays are zero after a rebuild, as a new solver's are: cleared whole when a contact pass
+    wrote them since they were last cleared, else only their added rows set (``contact_zero`` says which)."""
+    from warpblob.tools import Path
+
     # pressed in by the third step, held, then away by the sixth
     keys, z = [0.0, 0.05, 0.07, 0.09], [0.52, 0.45, 0.45, 2.0]
-    sim.add_tool(Probe(0.1), Path(keys, [(0.5, 0.25, h) for h in z]), stiffness=1e6)
+    _, s, sim = _box_with_probe((16, 8, 8), Path(keys, [(0.5, 0.25, h) for h in z]))
+    assert sim._solver.contact_zero
     blade = np.array([[0.05, 0.22, 0.7], [0.15, 0.22, 0.7]])
     for touching in (True, False):
         sim.step(3)
@@ -263,13 +273,8 @@ def test_a_contact_follows_a_cut_and_binds_anew_after_any_other_edit():
     """A simulation with a contact tool: after a cut's rebuild the contact's spread is followed from the one
     before (and equals one made anew); after a rebuild of every tet it is made anew (the same spread)."""
     from warpblob.sim._contact import _ring_spread
-    from warpblob.tools import Path, Probe
 
-    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (8, 4, 4))
-    s = TetStructure.from_tetmesh(box)
-    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 2] == 0.0,
-                        gravity=(0, 0, 0), model=wb.Box((0, 0, 0), (1.0, 0.5, 0.5), 0.05))  # fmt: skip
-    sim.add_tool(Probe(0.1), Path.line((0.5, 0.25, 0.7), (0.5, 0.25, 0.6), 0.05), stiffness=1e6, kring=2)
+    _, s, sim = _box_with_probe((8, 4, 4))
     contact = sim._contact
     blade = np.array([[0.05, 0.19, 0.7], [0.3, 0.19, 0.7]])
     r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, 0.3)), collect=False)
@@ -291,13 +296,8 @@ def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
     edges, the spread made anew)."""
     from warpblob.mesh import TetMesh
     from warpblob.sim._contact import _ring_spread
-    from warpblob.tools import Path, Probe
 
-    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (10, 5, 5))
-    s = TetStructure.from_tetmesh(box)
-    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0, fixed=box.nodes[:, 2] == 0.0,
-                        gravity=(0, 0, 0), model=wb.Box((0, 0, 0), (1.0, 0.5, 0.5), 0.05))  # fmt: skip
-    sim.add_tool(Probe(0.1), Path.line((0.5, 0.25, 0.7), (0.5, 0.25, 0.6), 0.05), stiffness=1e6, kring=2)
+    box, s, sim = _box_with_probe((10, 5, 5))
     contact = sim._contact
     rng = np.random.default_rng(7)
     for _ in range(5):
