@@ -149,6 +149,16 @@ def sample_areas(tool: Tool, points: np.ndarray) -> np.ndarray:
     return (on * np.where(count > 0, 0.5 * twice / np.maximum(count, 1), 0.0)).sum(axis=1)
 
 
+def _tets_at(incidence: tuple, nodes: np.ndarray, live: np.ndarray) -> np.ndarray:
+    """The live tets at ``nodes`` (int64), ascending, from an incidence ``(offsets, corners)``
+    (:meth:`~warpblob.sim._elements.Elements.incidence`)."""
+    offsets, corners = incidence
+    count = offsets[nodes + 1] - offsets[nodes]
+    start = np.repeat(offsets[nodes] - (np.cumsum(count) - count), count)
+    t = _unique(corners[start + np.arange(int(count.sum()))] // 4)
+    return t[live[t]]
+
+
 def _edge_lengths(rest: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(K, 6) float32 edge lengths of the (K, 4) ``tets`` (each length computed on its own: the same bits
     whatever the batch)."""
@@ -245,26 +255,18 @@ def ring_spread_after(previous: tuple, tets: np.ndarray, alive: np.ndarray, node
         return _ring_spread(tets, alive, N, k)
     tets = np.asarray(tets)
     alive = np.asarray(alive, dtype=bool)
-    inc_offsets, inc_corners = incidence
-
-    def tets_of(nodes):  # the live tets at ``nodes``, ascending
-        count = inc_offsets[nodes + 1] - inc_offsets[nodes]
-        start = np.repeat(inc_offsets[nodes] - (np.cumsum(count) - count), count)
-        t = _unique(inc_corners[start + np.arange(int(count.sum()))] // 4)
-        return t[alive[t]]
-
     # the nodes by edge distance from the touched ones, up to 3 k - 1 (a ring of the rows within 2 k)
     within = np.zeros(N, dtype=bool)
     level = np.unique(np.asarray(touched, dtype=np.int64))
     within[level] = True
     levels = [level]
     for _ in range(3 * k - 1):
-        near = _unique(tets[tets_of(level)].ravel().astype(np.int64))
+        near = _unique(tets[_tets_at(incidence, level, alive)].ravel().astype(np.int64))
         level = near[~within[near]]
         within[level] = True
         levels.append(level)
     redo = np.sort(np.concatenate(levels[: 2 * k + 1]))
-    local = tets[tets_of(np.concatenate(levels))].astype(np.int64)
+    local = tets[_tets_at(incidence, np.concatenate(levels), alive)].astype(np.int64)
     keys, rings = _rings(_adjacency(local, N), redo, N, k)
     rows, cols = keys // N, keys % N
     w = (k + 1 - rings) / (k + 1)
@@ -382,10 +384,12 @@ class Contact:
         # from the state before it where that can be done exactly; anything else is bound anew
         local = (e is getattr(self, "_bound", (None, 0))[0] and e.revision == self._bound[1] + 1
                  and e.touched_nodes is not None and len(self._near) <= e.node_count
-                 and len(self._layer_mask) <= e.tet_count)  # fmt: skip
+                 and len(self._layer_mask) <= e.tet_count and e.node_count < 2_000_000)  # fmt: skip
+        # (the face keys below take three node indices in an int64)
+        self._incidence = e.incidence() if local else None
         # the boundary layer (the tets with a node on the boundary) and every tet's edge lengths (T, 6)
         if local:
-            near, mask, around = self._layer_after(live, e.touched_nodes)
+            near, mask, around = self._layer_after(live, e.touched_nodes, self._incidence)
             lengths = np.empty((e.tet_count, 6), dtype=np.float32)
             lengths[: len(self._lengths)] = self._lengths
             redo = np.union1d(around, np.arange(len(self._lengths), e.tet_count))
@@ -421,7 +425,7 @@ class Contact:
         self._node_bvh = None
         self._build_buffers()
 
-    def _layer_after(self, live: np.ndarray, touched: np.ndarray) -> tuple:
+    def _layer_after(self, live: np.ndarray, touched: np.ndarray, incidence: tuple) -> tuple:
         """The boundary flags (N,), the layer's mask (T,) and the live tets at the touched nodes after a local
         edit, from those before it.
 
@@ -438,11 +442,7 @@ class Contact:
         mask[: len(self._layer_mask)] = self._layer_mask
         mask &= live
         touched = np.asarray(touched, dtype=np.int64)
-        offsets, corners = e.incidence()
-        count = offsets[touched + 1] - offsets[touched]
-        start = np.repeat(offsets[touched] - (np.cumsum(count) - count), count)
-        around = _unique(corners[start + np.arange(int(count.sum()))] // 4)
-        around = around[live[around]]
+        around = _tets_at(incidence, touched, live)
         faces = np.sort(e.tets_host[around].astype(np.int64)[:, [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]]], axis=2)
         keys = ((faces[..., 0] * N + faces[..., 1]) * N + faces[..., 2]).ravel()
         order = np.argsort(keys, kind="stable")
@@ -484,7 +484,7 @@ class Contact:
             before = self._rings_before.get(k)
             if before is not None and self._follow is not None:
                 self._rings[k] = ring_spread_after(before, e.tets_host, live, e.node_count, k, self._follow,
-                                                   e.incidence())  # fmt: skip
+                                                   self._incidence)  # fmt: skip
             else:
                 self._rings[k] = _ring_spread(e.tets_host, live, e.node_count, k)
         return self._rings[k]
