@@ -13,7 +13,7 @@ from ._errors import ResourceError
 from ._parallel import launch
 
 __all__ = ["StageClock", "available_memory", "check_memory", "scan", "scans", "compact", "room", "host_array", "head",
-           "device_array", "device_empty", "clear_rows", "column_bounds", "rows_any", "rows_all"]
+           "device_array", "device_empty", "shared_array", "set_rows", "column_bounds", "rows_any", "rows_all"]
 
 #: grid cells from which ``progress=None`` shows a bar (a job of seconds on 2 CPU cores)
 PROGRESS_CELLS = 8_000_000
@@ -311,23 +311,39 @@ def device_empty(n: int, dtype, device, zero: bool = False) -> wp.array:
     return (wp.zeros if zero else wp.empty)(n, dtype=dtype, device=device)
 
 
-def clear_rows(view: wp.array, start: int = 0, value: float = 0.0) -> None:
-    """Set rows ``[start, n)`` of the 1-D array ``view`` to ``value`` in every component (0: zero them).
+def shared_array(values, dtype, device) -> wp.array:
+    """``values`` (C-contiguous, converted where needed) as a Warp array: its own memory on the CPU, a
+    copy on CUDA.
+
+    Example:
+        >>> a = np.arange(3, dtype=np.int32)
+        >>> shared_array(a, wp.int32, "cpu").ptr == a.ctypes.data
+        True
+    """
+    return device_array(np.ascontiguousarray(values), dtype, device, copy=not _on_cpu(device))
+
+
+def set_rows(view: wp.array, start, value) -> None:
+    """Set rows ``[start, n)`` of the 1-D array ``view`` to ``value``: a number (every component; 0 zeroes
+    them) or an array of those rows.
 
     Example:
         >>> a = wp.array(np.arange(4, dtype=np.float32), device="cpu")
-        >>> clear_rows(a, 2); a.numpy().tolist()
-        [0.0, 1.0, 0.0, 0.0]
+        >>> set_rows(a, 2, 0.0); set_rows(a, 3, [7.0]); a.numpy().tolist()
+        [0.0, 1.0, 0.0, 7.0]
     """
     n = view.shape[0]
     if start >= n:
         return
-    if view.device.is_cpu:  # (numpy's fill of the rows: no Warp view of them to make)
+    if view.device.is_cpu:  # (numpy's writes of the rows: no Warp view of them to make)
         view.numpy()[start:] = value
+        return
+    rows = view[start:]
+    if np.ndim(value):
+        rows.assign(np.asarray(value, dtype=_kind(view.dtype)[0]))
     elif value == 0.0:
-        view[start:].zero_()
+        rows.zero_()
     else:
-        rows = view[start:]
         rows.fill_(rows.dtype(*([value] * getattr(rows.dtype, "_length_", 1))))
 
 

@@ -55,7 +55,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import WarpblobError
 from .._parallel import launch, submit, thread_count
-from .._stages import device_array, device_empty, host_array, mark_heads_kernel, rows_all, rows_any
+from .._stages import device_array, device_empty, host_array, mark_heads_kernel, rows_all, rows_any, shared_array
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
 
@@ -952,10 +952,7 @@ def _remap(index_map: np.ndarray, refs: np.ndarray) -> np.ndarray:
 
 def _shared(values: np.ndarray, dtype=wp.int32, device="cpu") -> wp.array:
     """``values`` as a Warp array: its own memory on the CPU (no copy), a copy on CUDA."""
-    values = np.ascontiguousarray(values)
-    if (device == "cpu") if isinstance(device, str) else device.is_cpu:
-        return host_array(values, dtype)
-    return wp.array(values, dtype=dtype, device=device, copy=wp.get_device(device).is_cuda)
+    return shared_array(values, dtype, device)
 
 
 def _mark_used(used: np.ndarray, refs: np.ndarray, alive: np.ndarray) -> None:

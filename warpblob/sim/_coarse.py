@@ -85,7 +85,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch
-from .._stages import ROOM, clear_rows, column_bounds, device_array, device_empty, room
+from .._stages import ROOM, column_bounds, device_array, device_empty, room, set_rows, shared_array
 from ..mesh._structure import _connected, _unique_inverse
 from . import _kernels as k
 
@@ -294,7 +294,7 @@ class CoarseSpace:
     def _array(self, a: np.ndarray, dtype=wp.int32) -> wp.array:
         # (on the CPU these fresh host arrays are used in place, not copied)
         dev = self.elements.device
-        return device_array(np.ascontiguousarray(a), dtype, dev, copy=dev.is_cuda)
+        return shared_array(a, dtype, dev)
 
     def _set_slots(self, e, node_aggregate, start, start_wp, alive_wp, pairs, pair_offsets, pair_slots,
                    kept: dict, order: np.ndarray | None = None, extra: tuple | None = None,
@@ -331,7 +331,7 @@ class CoarseSpace:
         self._bases["slots"], self.slots = room(kept.get("slots"), int(start[-1]), wp.spatial_matrix, dev)
         for name in ("node_mode", "reference"):
             self._bases[name], view = room(kept.get(name), N, wp.vec3, dev)
-            clear_rows(view, kept_rows if self._bases[name] is kept.get(name) else 0)
+            set_rows(view, kept_rows if self._bases[name] is kept.get(name) else 0, 0.0)
             setattr(self, name, view)
         self._changes = wp.zeros(1, dtype=wp.int32, device=dev)
         self._aggregated = len(order)

@@ -46,7 +46,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import SimulationError, ToolError
 from .._parallel import check_threads
-from .._stages import clear_rows, column_bounds, device_empty, room
+from .._stages import column_bounds, device_empty, room, set_rows
 from ..mesh import TetMesh, TetStructure
 from . import _kernels as k
 from ._coarse import node_pieces
@@ -338,16 +338,11 @@ class Simulation:
         if N > kept:
             for buffer, rows in ((self._x[0], added), (self._v[0], np.asarray(velocities, dtype=np.float32)),
                                  (self._target, added), (self._external, 0.0)):  # fmt: skip
-                if dev.is_cpu:  # (the rows written in place: no Warp views of them to make)
-                    buffer.numpy()[kept:] = rows
-                elif np.ndim(rows):
-                    (buffer[kept:] if kept else buffer).assign(rows)
-                else:
-                    (buffer[kept:] if kept else buffer).zero_()
+                set_rows(buffer, kept, rows)
         # (the other buffers, and ``moved``, hold what the next step writes at every node before reading it:
         # a rebuild sets the added rows only)
         for name, buffer in (("x1", self._x[1]), ("v1", self._v[1])):
-            clear_rows(buffer, kept if self._kept[name] is before.get(name) else 0)
+            set_rows(buffer, kept if self._kept[name] is before.get(name) else 0, 0.0)
         # a rebuild's element states keep their buffers: the current one becomes state 0 (its values for the
         # tets that stay are then in place for the carried pass, see _refresh)
         states = getattr(self, "_states", None)
@@ -355,7 +350,7 @@ class Simulation:
         self._cur = 0
         self._moved = self._node_buffer("moved", N, wp.vec3)
         self._flags = self._node_buffer("flags", N, wp.uint8)
-        clear_rows(self._moved, kept if self._kept["moved"] is before.get("moved") else 0)
+        set_rows(self._moved, kept if self._kept["moved"] is before.get("moved") else 0, 0.0)
         self._flags.zero_()
         self._states = [ElementState(T, N, dev, reuse[0]), ElementState(T, N, dev, reuse[1])]
         # the structure's piece count (through faces, so through nodes too), where it knows it: one piece
@@ -402,10 +397,7 @@ class Simulation:
         rigid_free = self._rigid_pieces()
         fixed = self._fixed_mask | self._rigid_fixed
         flags = np.where(fixed, k.FIXED, np.where(rigid_free, k.RIGID, np.where(self._mass > 0, k.FREE, k.INACTIVE)))
-        if self.device.is_cpu:
-            self._flags.numpy()[:] = flags
-        else:
-            self._flags.assign(flags.astype(np.uint8))
+        set_rows(self._flags, 0, flags)
         self._solver.set_rigid(self._bodies)
         self._solver.invalidate()
         self._refresh()

@@ -71,7 +71,7 @@ import numpy as np
 import warp as wp
 
 from .._parallel import launch, submit, thread_count
-from .._stages import clear_rows, device_array, room
+from .._stages import device_array, room, set_rows
 from . import _kernels as k
 from ._coarse import COARSE_EVERY, CoarseSpace
 from ._rigid import norm_blocks_kernel
@@ -319,7 +319,7 @@ class ImplicitSolver:
             self._bases[name], view = room(base, N, dtype, dev)
             keep = name in _WRITTEN or (keep_contact and name.startswith("contact_"))
             kept = getattr(previous, name).shape[0] if self._bases[name] is base and keep else 0
-            clear_rows(view, kept, 1.0 if name == "ones" else 0.0)
+            set_rows(view, kept, 1.0 if name == "ones" else 0.0)
             setattr(self, name, view)
         #: whether the contact arrays are all zero (the contact pass sets it when it writes or clears them)
         self.contact_zero = True

@@ -38,7 +38,7 @@ import warp as wp
 from .._device import resolve_device
 from .._errors import MeshError
 from .._parallel import check_threads, launch
-from .._stages import StageClock, compact, device_array, device_empty, scans
+from .._stages import StageClock, compact, device_empty, scans, shared_array
 from ..mesh import SurfaceMesh
 from . import _kernels
 from ._section import cap_triangles, relink_pinches
@@ -254,8 +254,8 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     if n_v == 0 or n_f == 0:
         return _empty(dict(stats)), _empty(dict(stats))
     lap = clock.lap
-    positions = device_array(vertices, wp.vec3, dev, copy=dev.is_cuda)
-    triangles = device_array(faces, wp.vec3i, dev, copy=dev.is_cuda)
+    positions = shared_array(vertices, wp.vec3, dev)
+    triangles = shared_array(faces, wp.vec3i, dev)
     origin_d, normal_d = wp.vec3d(*o), wp.vec3d(*n)
     vb = -(-n_v // _kernels.BLOCK)
     fb = -(-n_f // _kernels.BLOCK)
@@ -356,7 +356,7 @@ def _slice_one(mesh, o, n, cap, color, model, snap, dev, threads) -> tuple[Surfa
     }
     u, v = _axes(n)
     coords = device_empty(n_points, wp.vec2d, dev)
-    normals_d, colors_d = device_array(normals, wp.vec3, dev, copy=dev.is_cuda), device_array(colors, wp.vec3, dev, copy=dev.is_cuda)
+    normals_d, colors_d = shared_array(normals, wp.vec3, dev), shared_array(colors, wp.vec3, dev)
     launch(
         _kernels.point_kernel, n_points,
         [point_keys, crossing_rank, positions, normals_d, colors_d, origin_d, normal_d, wp.vec3d(*u), wp.vec3d(*v),
