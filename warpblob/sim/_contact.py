@@ -401,7 +401,7 @@ class Contact:
             mask = np.zeros(e.tet_count, dtype=bool)
             mask[live] = rows_any(near[t])
             lengths = _edge_lengths(e.rest_host, e.tets_host)
-        self._near, self._layer_mask, self._lengths = near, mask, lengths
+        self._near, self._layer_mask, self._lengths, self._live = near, mask, lengths, live
         # (a tet's rows are its own: the median of the live tets' edges as one pass over them gives it)
         self.edge = float(np.median(lengths[live]))
         self.band = BAND * self.edge
@@ -479,8 +479,7 @@ class Contact:
         """The k-ring spread (:func:`ring_spread`, with its sums), followed over the last rebuild from the one
         before it where that was a local edit of the element data this contact was bound to (:meth:`bind`)."""
         if k not in self._rings:
-            e = self.elements
-            live = e.alive_host & (e.volume.numpy() > 0)
+            e, live = self.elements, self._live
             before = self._rings_before.get(k)
             if before is not None and self._follow is not None:
                 self._rings[k] = ring_spread_after(before, e.tets_host, live, e.node_count, k, self._follow,
