@@ -605,3 +605,52 @@ def test_repr_is_a_short_summary():
     s.remove_cell(0)
     assert f"{6 * n**3 - 1:,} cells" in repr(s) and "1 removals pending" in repr(s)
     assert repr(s.cell(3)) == "CellView(index=3)" and repr(s.node(0)) == "NodeView(index=0)"
+
+
+def _table_contents(s):
+    """The lookup table as {key: edge} (deleted and empty slots left out)."""
+    used = s._table_keys >= 0
+    return dict(zip(s._table_keys[used].tolist(), s._table_values[used].tolist()))
+
+
+def _fresh_table(s):
+    fresh = TetStructure.from_tetmesh(TetMesh(s.node_rest, s.cell_nodes[s.cell_alive]))
+    return fresh, _table_contents(fresh)
+
+
+def test_compaction_keeps_the_lookup_table_when_no_node_goes():
+    """A compaction that removes edges but keeps every node (a cut's) follows the table in place: the
+    same arrays, every live edge under its new index, removed ones not found, the same pairs as a table
+    built afresh; one that removes a node builds it anew."""
+    s = TetStructure.from_tetmesh(grid_mesh(3))
+    # the cells at one interior edge's nodes go, then cells that split it come back (every node stays used)
+    e = next(e for e in s.ids("edge") if s.faces_of_edge(e).size == 6)  # an interior edge
+    a, b = s.edge_nodes[e].tolist()
+    ring = np.flatnonzero(np.any(s.cell_nodes == a, axis=1) & np.any(s.cell_nodes == b, axis=1) & s.cell_alive)
+    mid = s.insert_nodes(0.5 * (s.node_rest[[a]] + s.node_rest[[b]]), 0.5 * (s.node_position[[a]] + s.node_position[[b]]))
+    new = []
+    for c in ring.tolist():
+        for end in (a, b):
+            t = s.cell_nodes[c].copy()
+            t[t == end] = int(mid[0])
+            new.append(t)
+    s.replace_cells(ring, np.array(new), 0)
+    keys, values = s._table_keys, s._table_values
+    old_pairs = {tuple(sorted(s.edge_nodes[i].tolist())) for i in s.ids("edge")}
+    maps = s.collect_garbage()
+    assert maps["node"].min() >= 0 and (maps["edge"] < 0).sum() == 1  # the split edge alone went
+    assert s._table_keys is keys and s._table_values is values  # followed in place, not rebuilt
+    s.check()
+    assert_consistent(s)
+    assert s.find_edge(a, b) == -1
+    _, fresh = _fresh_table(s)
+    assert _table_contents(s) == fresh
+    assert {tuple(sorted(p)) for p in s.edge_nodes.tolist()} == old_pairs - {tuple(sorted((a, b)))}
+    # a compaction that removes a node builds the table anew
+    corner = int(np.argmin(s.node_rest.sum(axis=1)))  # the box's corner at the origin: only its cube's tets hold it
+    s.replace_cells(np.flatnonzero(np.any(s.cell_nodes == corner, axis=1)), np.zeros((0, 4), np.int32), 0)
+    keys = s._table_keys
+    maps = s.collect_garbage()
+    assert maps["node"][corner] == -1 and s._table_keys is not keys
+    s.check()
+    assert _table_contents(s) == _fresh_table(s)[1]
