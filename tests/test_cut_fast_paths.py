@@ -12,7 +12,8 @@ from warpblob.cut import _kernels as k
 from warpblob.cut._cut import _boxes, _planes
 from warpblob.mesh import TetStructure, box_tetmesh
 from warpblob.mesh import _structure as structure_module
-from warpblob.mesh._structure import _unique_first, _unique_inverse, vec6i
+from warpblob.mesh import _structure
+from warpblob.mesh._structure import _group_keys, _unique_first, _unique_inverse, vec6i
 
 
 def _intersect(kernel, edges, positions, sweep, device):
@@ -107,6 +108,27 @@ def test_unique_inverse_is_numpys():
         for x, y in zip(want, got):
             np.testing.assert_array_equal(np.ravel(x), y)
             assert np.ravel(x).dtype == y.dtype
+
+
+@pytest.mark.parametrize("spread", ["golden", "colliding"])
+def test_key_groups_are_numpys_partition(spread, monkeypatch):
+    """The face matching's groups: the partition of numpy's unique (groups in an order of their own) for keys
+    the packed sort takes, wide keys (the hashed sort) and, with a hash that sends every key to one value, the
+    fallback when keys share a hash."""
+    if spread == "colliding":
+        monkeypatch.setattr(_structure, "_GOLDEN", 0)
+    rng = np.random.default_rng(8)
+    for keys in (rng.integers(0, 1 << 40, 5000), rng.integers(0, 1 << 53, 20000), rng.integers(0, 1 << 62, 3000),
+                 np.zeros(0, np.int64), np.array([1 << 55])):  # fmt: skip
+        keys = np.concatenate([keys, keys[::7], keys[: len(keys) // 3]]).astype(np.int64)
+        rng.shuffle(keys)
+        count, groups = _group_keys(keys)
+        uniq, want = np.unique(keys, return_inverse=True)
+        assert count == len(uniq) and groups.shape == keys.shape
+        if len(keys):
+            assert groups.min() == 0 and groups.max() == count - 1
+        # one group per key value and one key value per group
+        np.testing.assert_array_equal(np.unique(np.stack([groups, want.ravel()], 1), axis=0).shape, (count, 2))
 
 
 @pytest.mark.parametrize("top", [1_000, 1 << 50])
