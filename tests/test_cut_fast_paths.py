@@ -12,7 +12,6 @@ from warpblob.cut import _kernels as k
 from warpblob.cut._cut import _boxes, _planes
 from warpblob.mesh import TetStructure, box_tetmesh
 from warpblob.mesh import _structure as structure_module
-from warpblob.mesh import _structure
 from warpblob.mesh._structure import _group_keys, _unique_first, _unique_inverse, vec6i
 
 
@@ -25,6 +24,11 @@ def _intersect(kernel, edges, positions, sweep, device):
     if kernel is k.intersect_edges_kernel:
         bvh = wp.Bvh(lowers, uppers)
         inputs += [bvh.id, corners, 0]
+    elif kernel is k.intersect_edges_sides_kernel:  # the nodes' sides first, as the cut takes them
+        normals, slack = _planes(sweep, device)
+        sides = wp.empty((len(positions), sweep.triangle_count), dtype=wp.vec2, device=device)
+        wp.launch(k.node_sides_kernel, dim=len(positions), inputs=[inputs[2], corners, normals, 0, sides], device=device)
+        inputs += [lowers, uppers, corners, sides, slack, 0]
     else:
         inputs += [lowers, uppers, corners, *_planes(sweep, device), 0]
     out = [wp.empty(n, dtype=float, device=device), wp.empty(n, dtype=wp.int32, device=device),
@@ -59,6 +63,7 @@ def test_few_triangle_intersection_is_the_bvh_one(device):
     tree = _intersect(k.intersect_edges_kernel, edges, positions, sweep, device)
     assert few[2].sum() > 50  # many hits
     assert_same_hits(few, tree)
+    assert_same_hits(_intersect(k.intersect_edges_sides_kernel, edges, positions, sweep, device), tree)
 
 
 @pytest.mark.parametrize("scale", [1.0, 1e3])
@@ -93,6 +98,8 @@ def test_same_side_skip_keeps_every_hit(device, scale):
     tree = _intersect(k.intersect_edges_kernel, edges.astype(np.int32), positions, sweep, device)
     assert 0.3 * len(edges) < few[2].sum() < len(edges)  # hits and misses both
     assert_same_hits(few, tree)
+    # the same test from each node's sides, taken once (a sweep over most of the mesh)
+    assert_same_hits(_intersect(k.intersect_edges_sides_kernel, edges.astype(np.int32), positions, sweep, device), tree)
 
 
 def test_unique_inverse_is_numpys():
@@ -116,7 +123,7 @@ def test_key_groups_are_numpys_partition(spread, monkeypatch):
     the packed sort takes, wide keys (the hashed sort) and, with a hash that sends every key to one value, the
     fallback when keys share a hash."""
     if spread == "colliding":
-        monkeypatch.setattr(_structure, "_GOLDEN", 0)
+        monkeypatch.setattr(structure_module, "_GOLDEN", 0)
     rng = np.random.default_rng(8)
     for keys in (rng.integers(0, 1 << 40, 5000), rng.integers(0, 1 << 53, 20000), rng.integers(0, 1 << 62, 3000),
                  np.zeros(0, np.int64), np.array([1 << 55])):  # fmt: skip

@@ -95,6 +95,9 @@ _ROUNDS = 64
 _BITS6, _BITS4 = 1 << np.arange(6), 1 << np.arange(4)
 #: sweeps of at most this many triangles are intersected without a BVH (each triangle's box tested in turn)
 _FEW_TRIANGLES = 16
+#: sweep triangles up to which a sweep over most of the mesh (as many edges tested as nodes) takes each node's
+#: sides once (``node_sides_kernel``): a plane's two, a few strips
+_FEW_SIDES = 4
 #: items per piece of a range-split launch of a kernel doing a few loads and stores per item (a piece is a
 #: launch: smaller ones cost more in overhead than they save)
 _CHEAP = 16384
@@ -328,7 +331,13 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     hit_t = device_empty(T, float, dev)
     hit_tri = device_empty(T, wp.int32, dev)
     flags = device_empty(T, wp.int32, dev)
-    if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
+    if len(boxes[0]) <= _FEW_SIDES and T >= N:  # a sweep over most of the mesh: each node's sides once
+        normals, slack = _planes(sweep, dev)
+        sides = wp.empty((N, len(boxes[0])), dtype=wp.vec2, device=dev)
+        launch(k.node_sides_kernel, N, [positions, corners, normals], [sides], dev, threads, min_chunk=8192)
+        launch(k.intersect_edges_sides_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners, sides, slack],
+               [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
+    elif len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
         launch(k.intersect_edges_few_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners,
                *_planes(sweep, dev)], [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
     else:

@@ -100,6 +100,64 @@ def intersect_edges_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def node_sides_kernel(positions: wp.array(dtype=wp.vec3), corners: wp.array(dtype=wp.vec3),
+                      normals: wp.array(dtype=wp.vec3), offset: int, sides: wp.array2d(dtype=wp.vec2)):  # fmt: skip
+    """Per node ``v`` and sweep triangle ``i``: (its side ``n . (p - c0)``, the L1 length of ``p - c0``), the
+    terms of :func:`intersect_edges_few_kernel`'s same-side test, computed once per node for
+    :func:`intersect_edges_sides_kernel`."""
+    v = wp.tid() + offset
+    p = positions[v]
+    for i in range(normals.shape[0]):
+        sp = p - corners[3 * i]
+        sides[v, i] = wp.vec2(wp.dot(normals[i], sp), wp.abs(sp[0]) + wp.abs(sp[1]) + wp.abs(sp[2]))
+
+
+@wp.kernel(enable_backward=False)
+def intersect_edges_sides_kernel(
+    edge_nodes: wp.array(dtype=wp.vec2i),
+    edge_ok: wp.array(dtype=wp.uint8),
+    positions: wp.array(dtype=wp.vec3),
+    lowers: wp.array(dtype=wp.vec3),
+    uppers: wp.array(dtype=wp.vec3),
+    corners: wp.array(dtype=wp.vec3),
+    sides: wp.array2d(dtype=wp.vec2),
+    slack: wp.array(dtype=float),
+    offset: int,
+    hit_t: wp.array(dtype=float),
+    hit_tri: wp.array(dtype=wp.int32),
+    flags: wp.array(dtype=wp.int32),
+):
+    """:func:`intersect_edges_few_kernel` with its same-side test read from the ends' rows of
+    :func:`node_sides_kernel` (a sweep over most of the mesh: each node's terms once instead of once per
+    edge, and an edge loads its ends' positions only where a triangle's plane may cross it): the same
+    triangles tested in the same order, the same hits."""
+    e = wp.tid() + offset
+    flags[e] = 0  # hit_t and hit_tri are written at hits only (read there only)
+    if edge_ok[e] == wp.uint8(0):
+        return
+    u = edge_nodes[e][0]
+    w = edge_nodes[e][1]
+    for i in range(lowers.shape[0]):
+        a = sides[u, i]
+        b = sides[w, i]
+        tol = slack[i] * (a[1] + b[1])
+        if not ((a[0] > tol and b[0] > tol) or (a[0] < -tol and b[0] < -tol)):
+            p = positions[u]
+            q = positions[w]
+            lo = wp.min(p, q)
+            hi = wp.max(p, q)
+            lb = lowers[i]
+            ub = uppers[i]
+            if not (lo[0] > ub[0] or lo[1] > ub[1] or lo[2] > ub[2] or hi[0] < lb[0] or hi[1] < lb[1] or hi[2] < lb[2]):
+                t = segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
+                if t >= 0.0:
+                    hit_t[e] = t
+                    hit_tri[e] = i
+                    flags[e] = 1
+                    return
+
+
+@wp.kernel(enable_backward=False)
 def intersect_edges_few_kernel(
     edge_nodes: wp.array(dtype=wp.vec2i),
     edge_ok: wp.array(dtype=wp.uint8),
