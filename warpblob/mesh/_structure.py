@@ -1757,11 +1757,11 @@ class TetStructure:
         """After a compaction that kept every node's index (a cut's, which makes nodes and removes none),
         the lookup table follows it in place: the keys (node pairs) keep their slots, the values go through
         ``edge_map`` and a removed edge's slot is marked deleted, one pass over the slots instead of a
-        rebuild (which inserts every live edge again, one thread: 5x the time at 1M tets). False, and
-        nothing changed, where a rebuild is due: the table would be more than half full of keys and deleted
-        slots, or its size is not the one a build gives ``live`` edges (1/4 to 1/16 full)."""
-        bits = _table_bits(live)
-        if 2 * self._table_used > len(self._table_keys) or not bits <= self._table_bits <= bits + 2:
+        rebuild (which inserts every live edge again, one thread, into fresh memory: 3x the time at 1M tets). False, and
+        nothing changed, where a rebuild is due: the table is more than half full of keys and deleted
+        slots (the bound every insert keeps), or more than four times the size a build gives ``live`` edges
+        (a build leaves it 1/8 to 1/4 full)."""
+        if 2 * self._table_used > len(self._table_keys) or self._table_bits > _table_bits(live) + 2:
             return False
         launch(remap_table_kernel, len(self._table_keys), [host_array(edge_map.astype(np.int32, copy=False),
                wp.int32)], [host_array(self._table_keys, wp.int64), host_array(self._table_values, wp.int32)],
