@@ -24,13 +24,14 @@ def _intersect(kernel, edges, positions, sweep, device):
     if kernel is k.intersect_edges_kernel:
         bvh = wp.Bvh(lowers, uppers)
         inputs += [bvh.id, corners, 0]
-    elif kernel is k.intersect_edges_sides_kernel:  # the nodes' sides first, as the cut takes them
+    elif kernel == "sides":  # the few-triangle kernel from the nodes' sides, taken first (a plane through the mesh)
+        kernel = k.intersect_edges_few_kernel
         normals, slack = _planes(sweep, device)
         sides = wp.empty((len(positions), sweep.triangle_count), dtype=wp.vec2, device=device)
         wp.launch(k.node_sides_kernel, dim=len(positions), inputs=[inputs[2], corners, normals, 0, sides], device=device)
-        inputs += [lowers, uppers, corners, sides, slack, 0]
+        inputs += [lowers, uppers, corners, normals, slack, sides, 0]
     else:
-        inputs += [lowers, uppers, corners, *_planes(sweep, device), 0]
+        inputs += [lowers, uppers, corners, *_planes(sweep, device), wp.empty((0, 0), dtype=wp.vec2, device=device), 0]
     out = [wp.empty(n, dtype=float, device=device), wp.empty(n, dtype=wp.int32, device=device),
            wp.empty(n, dtype=wp.int32, device=device)]  # fmt: skip
     wp.launch(kernel, dim=n, inputs=inputs + out, device=device)
@@ -63,7 +64,7 @@ def test_few_triangle_intersection_is_the_bvh_one(device):
     tree = _intersect(k.intersect_edges_kernel, edges, positions, sweep, device)
     assert few[2].sum() > 50  # many hits
     assert_same_hits(few, tree)
-    assert_same_hits(_intersect(k.intersect_edges_sides_kernel, edges, positions, sweep, device), tree)
+    assert_same_hits(_intersect("sides", edges, positions, sweep, device), tree)
 
 
 @pytest.mark.parametrize("scale", [1.0, 1e3])
@@ -99,7 +100,7 @@ def test_same_side_skip_keeps_every_hit(device, scale):
     assert 0.3 * len(edges) < few[2].sum() < len(edges)  # hits and misses both
     assert_same_hits(few, tree)
     # the same test from each node's sides, taken once (a sweep over most of the mesh)
-    assert_same_hits(_intersect(k.intersect_edges_sides_kernel, edges.astype(np.int32), positions, sweep, device), tree)
+    assert_same_hits(_intersect("sides", edges.astype(np.int32), positions, sweep, device), tree)
 
 
 def test_unique_inverse_is_numpys():

@@ -331,15 +331,14 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     hit_t = device_empty(T, float, dev)
     hit_tri = device_empty(T, wp.int32, dev)
     flags = device_empty(T, wp.int32, dev)
-    if len(boxes[0]) <= _FEW_SIDES and T >= N:  # a sweep over most of the mesh: each node's sides once
+    if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
         normals, slack = _planes(sweep, dev)
-        sides = wp.empty((N, len(boxes[0])), dtype=wp.vec2, device=dev)
-        launch(k.node_sides_kernel, N, [positions, corners, normals], [sides], dev, threads, min_chunk=8192)
-        launch(k.intersect_edges_sides_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners, sides, slack],
-               [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
-    elif len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
-        launch(k.intersect_edges_few_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners,
-               *_planes(sweep, dev)], [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
+        sides = wp.empty((0, 0), dtype=wp.vec2, device=dev)
+        if len(boxes[0]) <= _FEW_SIDES and T >= N:  # a sweep over most of the mesh: each node's sides once
+            sides = wp.empty((N, len(boxes[0])), dtype=wp.vec2, device=dev)
+            launch(k.node_sides_kernel, N, [positions, corners, normals], [sides], dev, threads, min_chunk=8192)
+        launch(k.intersect_edges_few_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners, normals, slack,
+               sides], [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
     else:
         bvh = wp.Bvh(*boxes)
         launch(k.intersect_edges_kernel, T, [tested_nodes, edge_ok, positions, bvh.id, corners],

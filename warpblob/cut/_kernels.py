@@ -19,6 +19,8 @@ __all__ = [
     "intersect_edges_few_kernel",
     "intersect_edges_kernel",
     "mark_edges_in_use_kernel",
+    "node_side",
+    "node_sides_kernel",
     "pair_faces_kernel",
     "segment_triangle",
     "subtet_faces_kernel",
@@ -99,62 +101,23 @@ def intersect_edges_kernel(
     flags[e] = wp.where(best_t >= 0.0, 1, 0)
 
 
+@wp.func
+def node_side(p: wp.vec3, c0: wp.vec3, n: wp.vec3):
+    """(the side ``n . (p - c0)`` of point ``p`` of a sweep triangle's plane, the L1 length of ``p - c0``):
+    a node's terms of :func:`intersect_edges_few_kernel`'s same-side test."""
+    sp = p - c0
+    return wp.vec2(wp.dot(n, sp), wp.abs(sp[0]) + wp.abs(sp[1]) + wp.abs(sp[2]))
+
+
 @wp.kernel(enable_backward=False)
 def node_sides_kernel(positions: wp.array(dtype=wp.vec3), corners: wp.array(dtype=wp.vec3),
                       normals: wp.array(dtype=wp.vec3), offset: int, sides: wp.array2d(dtype=wp.vec2)):  # fmt: skip
-    """Per node ``v`` and sweep triangle ``i``: (its side ``n . (p - c0)``, the L1 length of ``p - c0``), the
-    terms of :func:`intersect_edges_few_kernel`'s same-side test, computed once per node for
-    :func:`intersect_edges_sides_kernel`."""
+    """Per node ``v`` and sweep triangle ``i``: :func:`node_side`, once per node (the ``sides`` of
+    :func:`intersect_edges_few_kernel` for a sweep over most of the mesh)."""
     v = wp.tid() + offset
     p = positions[v]
     for i in range(normals.shape[0]):
-        sp = p - corners[3 * i]
-        sides[v, i] = wp.vec2(wp.dot(normals[i], sp), wp.abs(sp[0]) + wp.abs(sp[1]) + wp.abs(sp[2]))
-
-
-@wp.kernel(enable_backward=False)
-def intersect_edges_sides_kernel(
-    edge_nodes: wp.array(dtype=wp.vec2i),
-    edge_ok: wp.array(dtype=wp.uint8),
-    positions: wp.array(dtype=wp.vec3),
-    lowers: wp.array(dtype=wp.vec3),
-    uppers: wp.array(dtype=wp.vec3),
-    corners: wp.array(dtype=wp.vec3),
-    sides: wp.array2d(dtype=wp.vec2),
-    slack: wp.array(dtype=float),
-    offset: int,
-    hit_t: wp.array(dtype=float),
-    hit_tri: wp.array(dtype=wp.int32),
-    flags: wp.array(dtype=wp.int32),
-):
-    """:func:`intersect_edges_few_kernel` with its same-side test read from the ends' rows of
-    :func:`node_sides_kernel` (a sweep over most of the mesh: each node's terms once instead of once per
-    edge, and an edge loads its ends' positions only where a triangle's plane may cross it): the same
-    triangles tested in the same order, the same hits."""
-    e = wp.tid() + offset
-    flags[e] = 0  # hit_t and hit_tri are written at hits only (read there only)
-    if edge_ok[e] == wp.uint8(0):
-        return
-    u = edge_nodes[e][0]
-    w = edge_nodes[e][1]
-    for i in range(lowers.shape[0]):
-        a = sides[u, i]
-        b = sides[w, i]
-        tol = slack[i] * (a[1] + b[1])
-        if not ((a[0] > tol and b[0] > tol) or (a[0] < -tol and b[0] < -tol)):
-            p = positions[u]
-            q = positions[w]
-            lo = wp.min(p, q)
-            hi = wp.max(p, q)
-            lb = lowers[i]
-            ub = uppers[i]
-            if not (lo[0] > ub[0] or lo[1] > ub[1] or lo[2] > ub[2] or hi[0] < lb[0] or hi[1] < lb[1] or hi[2] < lb[2]):
-                t = segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
-                if t >= 0.0:
-                    hit_t[e] = t
-                    hit_tri[e] = i
-                    flags[e] = 1
-                    return
+        sides[v, i] = node_side(p, corners[3 * i], normals[i])
 
 
 @wp.kernel(enable_backward=False)
@@ -167,6 +130,7 @@ def intersect_edges_few_kernel(
     corners: wp.array(dtype=wp.vec3),
     normals: wp.array(dtype=wp.vec3),
     slack: wp.array(dtype=float),
+    sides: wp.array2d(dtype=wp.vec2),
     offset: int,
     hit_t: wp.array(dtype=float),
     hit_tri: wp.array(dtype=wp.int32),
@@ -179,29 +143,42 @@ def intersect_edges_few_kernel(
     ``slack`` (per triangle: 1e-4 |e1| |e2|, times the ends' L1 distances to its first corner; the
     rounding of :func:`segment_triangle` is below 1e-6 of that) is passed over: there its ``t`` is outside
     [0, 1] by more than 1e-4, so the test would give -1 too (the same hits, bit for bit, at a fraction
-    of the cost where a plane's box holds every edge)."""
+    of the cost where a plane's box holds every edge). The ends' terms of that test are :func:`node_side`,
+    read from the rows of ``sides`` ((nodes, triangles), :func:`node_sides_kernel`: a sweep over most of
+    the mesh, each node's terms once instead of once per edge, an edge's positions loaded only where a
+    plane may cross it) or, where ``sides`` is empty, computed here."""
     e = wp.tid() + offset
     flags[e] = 0  # hit_t and hit_tri are written at hits only (read there only)
     if edge_ok[e] == wp.uint8(0):
         return
-    p = positions[edge_nodes[e][0]]
-    q = positions[edge_nodes[e][1]]
-    lo = wp.min(p, q)
-    hi = wp.max(p, q)
+    u = edge_nodes[e][0]
+    w = edge_nodes[e][1]
+    here = sides.shape[0] == 0
+    p = wp.vec3()
+    q = wp.vec3()
+    if here:
+        p = positions[u]
+        q = positions[w]
     for i in range(lowers.shape[0]):
-        a = lowers[i]
-        b = uppers[i]
-        if not (lo[0] > b[0] or lo[1] > b[1] or lo[2] > b[2] or hi[0] < a[0] or hi[1] < a[1] or hi[2] < a[2]):
-            c0 = corners[3 * i]
-            sp = p - c0
-            sq = q - c0
-            n = normals[i]
-            dp = wp.dot(n, sp)
-            dq = wp.dot(n, sq)
-            tol = slack[i] * (wp.abs(sp[0]) + wp.abs(sp[1]) + wp.abs(sp[2]) + wp.abs(sq[0]) + wp.abs(sq[1])
-                              + wp.abs(sq[2]))  # fmt: skip
-            if not ((dp > tol and dq > tol) or (dp < -tol and dq < -tol)):
-                t = segment_triangle(p, q, c0, corners[3 * i + 1], corners[3 * i + 2])
+        a = wp.vec2()
+        b = wp.vec2()
+        if here:
+            a = node_side(p, corners[3 * i], normals[i])
+            b = node_side(q, corners[3 * i], normals[i])
+        else:
+            a = sides[u, i]
+            b = sides[w, i]
+        tol = slack[i] * (a[1] + b[1])
+        if not ((a[0] > tol and b[0] > tol) or (a[0] < -tol and b[0] < -tol)):
+            if not here:
+                p = positions[u]
+                q = positions[w]
+            lo = wp.min(p, q)
+            hi = wp.max(p, q)
+            lb = lowers[i]
+            ub = uppers[i]
+            if not (lo[0] > ub[0] or lo[1] > ub[1] or lo[2] > ub[2] or hi[0] < lb[0] or hi[1] < lb[1] or hi[2] < lb[2]):
+                t = segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
                 if t >= 0.0:
                     hit_t[e] = t
                     hit_tri[e] = i
