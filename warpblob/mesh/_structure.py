@@ -2497,9 +2497,10 @@ class TetStructure:
 
         Faces no live cell uses, then edges no live face or cell uses, then
         nodes no live edge, face or cell uses are removed (one "remove"
-        event per kind with the array of their indices); live entities are renumbered in their old order, links and
-        the lookup table rebuilt, the pending lists emptied, and a "compact"
-        event fires per kind.
+        event per kind with the array of their indices); live entities are renumbered in their old order, links
+        rebuilt, the lookup table followed in place where every node kept its index (a cut's compaction:
+        :meth:`_remap_table`) and rebuilt otherwise, the pending lists emptied, and a "compact" event fires
+        per kind.
 
         Returns:
             Per kind, the (old slot count,) int32 map from old to new index
