@@ -139,12 +139,22 @@ def launch(
     lock = threading.Lock()
 
     def work():
+        # a thread packs the arguments once, for its first piece, and sets only the offset and the size for
+        # the others (a recorded launch: 11 us a piece against 34 for a whole ``wp.launch`` of a kernel of
+        # a dozen arguments); each thread has its own record
+        record = None
         while True:
             with lock:
                 k = next(queue, None)
             if k is None:
                 return
-            wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[*before, bounds[k], *after], device=device)
+            if record is None:
+                record = wp.launch(kernel, dim=bounds[k + 1] - bounds[k], inputs=[*before, bounds[k], *after],
+                                   device=device, record_cmd=True)  # fmt: skip
+            else:
+                record.set_param_at_index(len(before), bounds[k])
+                record.set_dim(bounds[k + 1] - bounds[k])
+            record.launch()
 
     # compile (or load from the cache) here, once: the first launch of every
     # thread would otherwise compile the same module concurrently, n times over
