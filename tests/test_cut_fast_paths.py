@@ -28,7 +28,8 @@ def _intersect(kernel, edges, positions, sweep, device):
         kernel = k.intersect_edges_few_kernel
         normals, slack = _planes(sweep, device)
         sides = wp.empty((len(positions), sweep.triangle_count), dtype=wp.vec2, device=device)
-        wp.launch(k.node_sides_kernel, dim=len(positions), inputs=[inputs[2], corners, normals, 0, sides], device=device)
+        wp.launch(k.node_sides_kernel, dim=len(positions), inputs=[inputs[2], corners, normals, 0, sides],
+                  device=device)  # fmt: skip
         inputs += [lowers, uppers, corners, normals, slack, sides, 0]
     else:
         inputs += [lowers, uppers, corners, *_planes(sweep, device), wp.empty((0, 0), dtype=wp.vec2, device=device), 0]

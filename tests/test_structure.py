@@ -627,7 +627,8 @@ def test_compaction_keeps_the_lookup_table_when_no_node_goes():
     e = next(e for e in s.ids("edge") if s.faces_of_edge(e).size == 6)  # an interior edge
     a, b = s.edge_nodes[e].tolist()
     ring = np.flatnonzero(np.any(s.cell_nodes == a, axis=1) & np.any(s.cell_nodes == b, axis=1) & s.cell_alive)
-    mid = s.insert_nodes(0.5 * (s.node_rest[[a]] + s.node_rest[[b]]), 0.5 * (s.node_position[[a]] + s.node_position[[b]]))
+    rest, position = s.node_rest[[a, b]].mean(axis=0), s.node_position[[a, b]].mean(axis=0)
+    mid = s.insert_nodes(rest[None], position[None])
     new = []
     for c in ring.tolist():
         for end in (a, b):

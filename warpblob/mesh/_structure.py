@@ -1757,10 +1757,10 @@ class TetStructure:
         """After a compaction that kept every node's index (a cut's, which makes nodes and removes none),
         the lookup table follows it in place: the keys (node pairs) keep their slots, the values go through
         ``edge_map`` and a removed edge's slot is marked deleted, one pass over the slots instead of a
-        rebuild (which inserts every live edge again, one thread, into fresh memory: 3x the time at 1M tets). False, and
-        nothing changed, where a rebuild is due: the table is more than half full of keys and deleted
-        slots (the bound every insert keeps), or more than four times the size a build gives ``live`` edges
-        (a build leaves it 1/8 to 1/4 full)."""
+        rebuild (which inserts every live edge again, one thread, into fresh memory: 3x the time at 1M
+        tets). False, and nothing changed, where a rebuild is due: the table is more than half full of keys
+        and deleted slots (the bound every insert keeps), or more than four times the size a build gives
+        ``live`` edges (a build leaves it 1/8 to 1/4 full)."""
         if 2 * self._table_used > len(self._table_keys) or self._table_bits > _table_bits(live) + 2:
             return False
         launch(remap_table_kernel, len(self._table_keys), [host_array(edge_map.astype(np.int32, copy=False),
