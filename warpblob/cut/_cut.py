@@ -197,6 +197,17 @@ def _planes(sweep: SweepSurface, device) -> tuple[wp.array, wp.array]:
     return device_array(normals, wp.vec3, device), device_array(slack, float, device)
 
 
+#: per device, the empty ``sides`` of ``intersect_edges_few_kernel`` (its terms computed per edge), made once
+_NO_SIDES: dict = {}
+
+
+def _no_sides(device) -> wp.array:
+    key = str(device)
+    if key not in _NO_SIDES:
+        _NO_SIDES[key] = wp.empty((0, 0), dtype=wp.vec2, device=device)
+    return _NO_SIDES[key]
+
+
 def _compact(flags: wp.array, device, threads) -> np.ndarray:
     """Indices of the non-zero flags, ascending, on the host: on the CPU one pass over the flags' own memory;
     on CUDA an exclusive scan, then a kernel writes each at its place."""
@@ -333,7 +344,7 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     flags = device_empty(T, wp.int32, dev)
     if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
         normals, slack = _planes(sweep, dev)
-        sides = wp.empty((0, 0), dtype=wp.vec2, device=dev)
+        sides = _no_sides(dev)
         if len(boxes[0]) <= _FEW_SIDES and T >= N:  # a sweep over most of the mesh: each node's sides once
             sides = wp.empty((N, len(boxes[0])), dtype=wp.vec2, device=dev)
             launch(k.node_sides_kernel, N, [positions, corners, normals], [sides], dev, threads, min_chunk=8192)
