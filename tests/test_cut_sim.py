@@ -291,9 +291,9 @@ def test_a_contact_follows_a_cut_and_binds_anew_after_any_other_edit():
 
 def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
     """Five random strokes through a simulation with a contact tool: after each rebuild the contact's
-    boundary flags, boundary layer, median edge and k-ring spread, followed from the ones before, equal those
-    a new bind makes (the surface faces of the live tets, the tets with a node on them, the median of their
-    edges, the spread made anew)."""
+    boundary flags, boundary layer, median edge (and the sorted edge lengths it is taken from) and k-ring
+    spread, followed from the ones before, equal those a new bind makes (the surface faces of the live tets,
+    the tets with a node on them, the median of their edges, the spread made anew)."""
     from warpblob.mesh import TetMesh
     from warpblob.sim._contact import _ring_spread
 
@@ -315,6 +315,8 @@ def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
         np.testing.assert_array_equal(contact._layer.numpy(), np.flatnonzero(live)[near[t].any(axis=1)])
         edges = e.rest_host[t[:, [1, 2, 3, 2, 3, 3]]] - e.rest_host[t[:, [0, 0, 0, 1, 1, 2]]]
         assert contact.edge == float(np.median(np.linalg.norm(edges, axis=2)))  # (the live tets' median edge)
+        # (the lengths it keeps sorted to take it: a regular box's median hardly moves with a few of them)
+        np.testing.assert_array_equal(contact._sorted_lengths, np.sort(np.linalg.norm(edges, axis=2), axis=None))
         for a_, b_ in zip(_ring_spread(e.tets_host, live, e.node_count, 2), contact._rings[2]):
             np.testing.assert_array_equal(a_, b_)
     assert e.node_count > len(box.nodes)

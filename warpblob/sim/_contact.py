@@ -93,7 +93,8 @@ import warp as wp
 
 from .._errors import SimulationError, ToolError
 from .._linearize import linearize
-from .._stages import rows_any
+from .._parallel import launch
+from .._stages import device_array, host_array, rows_any
 from ..field import evaluate
 from ..mesh import TetMesh
 from ..tools import Path, Tool
@@ -166,6 +167,28 @@ def _edge_lengths(rest: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.linalg.norm(edges, axis=2)
 
 
+def _sorted_after(ordered: np.ndarray, old: np.ndarray, old_live: np.ndarray, new: np.ndarray, live: np.ndarray,
+                  redo: np.ndarray) -> np.ndarray | None:  # fmt: skip
+    """The sorted edge lengths of the live tets after an edit, from ``ordered`` (those before it, ascending):
+    the lengths of the tets that died (or whose rows ``redo`` changed) taken out, those of the tets that came
+    to life (or changed) put in. ``old``/``new``: (T0, 6) / (T, 6) float32 lengths, ``old_live``/``live``
+    their live masks. None where ``ordered`` does not hold what it should (then sort anew)."""
+    T0 = len(old)
+    was = np.zeros(len(live), dtype=bool)
+    was[:T0] = old_live
+    redo = redo[redo < T0]
+    redo = redo[was[redo] & live[redo]]
+    changed = redo[np.any(old[redo] != new[redo], axis=1)]
+    gone = np.sort(np.concatenate([old[np.flatnonzero(was & ~live)].ravel(), old[changed].ravel()]))
+    came = np.sort(np.concatenate([new[np.flatnonzero(live & ~was)].ravel(), new[changed].ravel()]))
+    # each value taken out at its own slot among equal ones
+    at = np.searchsorted(ordered, gone) + (np.arange(len(gone)) - np.searchsorted(gone, gone))
+    if len(gone) and (at[-1] >= len(ordered) or np.any(ordered[np.minimum(at, len(ordered) - 1)] != gone)):
+        return None
+    kept = np.delete(ordered, at)
+    return np.insert(kept, np.searchsorted(kept, came), came)
+
+
 def _unique(keys: np.ndarray) -> np.ndarray:
     """Sorted distinct ``keys`` by a sort (numpy's hashing ``np.unique`` is several times slower on these)."""
     keys = np.sort(keys)
@@ -189,18 +212,19 @@ def ring_spread(tets: np.ndarray, alive: np.ndarray, node_count: int, k: int):
 
 
 def _ring_spread(tets, alive, node_count: int, k: int) -> tuple:
-    """:func:`ring_spread` and the (N,) float64 sums ``Z``."""
+    """:func:`ring_spread`, the (N,) float64 sums ``Z`` and the ring of each entry (uint8)."""
     N = int(node_count)
     if k == 0:
         nodes = np.arange(N, dtype=np.int32)
-        return np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32), np.ones(N)
+        return (np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32), np.ones(N),
+                np.zeros(N, dtype=np.uint8))  # fmt: skip
     live = np.asarray(tets)[np.asarray(alive, dtype=bool)].astype(np.int64)
     keys, rings = _rings(_adjacency(live, N), np.arange(N, dtype=np.int64), N, k)
     rows, cols = keys // N, keys % N
     w = (k + 1 - rings) / (k + 1)
     total = np.bincount(rows, weights=w, minlength=N)
     offsets = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
-    return offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32), total
+    return offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32), total, rings.astype(np.uint8)
 
 
 def _adjacency(live: np.ndarray, N: int) -> tuple:
@@ -237,62 +261,75 @@ def _rings(adjacency: tuple, sources: np.ndarray, N: int, k: int) -> tuple:
 
 
 def ring_spread_after(previous: tuple, tets: np.ndarray, alive: np.ndarray, node_count: int, k: int,
-                      touched: np.ndarray, incidence: tuple) -> tuple:  # fmt: skip
+                      touched: np.ndarray, incidence: tuple, threads=None) -> tuple:  # fmt: skip
     """:func:`_ring_spread` after an edit that changed only tets whose corners (old and new, and every added
     node) are ``touched``, from ``previous`` (its result before the edit), recomputing only what can change.
 
-    The edit changes edges between touched nodes only, so a ring distance changes only along a path through
-    them: the rows of the nodes within ``k`` edges of them, and the sums ``Z`` of those, whose change reaches
-    the rows within ``2 k``. Those rows are found again by the same search, from those nodes only, over the
-    live tets round them (``incidence``: the live tets' :meth:`~warpblob.sim._elements.Elements.incidence`);
-    every other row is copied. The result is :func:`_ring_spread`'s, bit for bit (the sums are taken in the
-    same order).
+    The edit changes edges between touched nodes only, and a node's edge distance to them is the same
+    before and after it (a shortest path to them needs no edge between two of them). So a row's ring
+    structure (its nodes and their rings) changes only within ``k`` edges of them: those rows are found
+    again by the same search, from those nodes only, over the live tets round them (``incidence``: the live
+    tets' :meth:`~warpblob.sim._elements.Elements.incidence`), which gives their sums ``Z`` too. The rows
+    within ``2 k`` hold such a node and keep their structure: their weights ``w(r) / Z_c`` are taken again
+    from their rings and the new sums. Every other row is copied. Copying and weighing run in one kernel over
+    the rows (:func:`~warpblob.sim._contact_kernels.splice_rows_kernel`). The result is :func:`_ring_spread`'s,
+    bit for bit (the sums are taken in the same order).
     """
     N = int(node_count)
-    old_offsets, old_nodes, old_weights, old_total = previous
+    old_offsets, old_nodes, old_weights, old_total, old_rings = previous
     n_old = len(old_offsets) - 1
     if k == 0 or n_old > N or 8 * len(touched) > N:  # (an edit of much of the mesh: made anew)
         return _ring_spread(tets, alive, N, k)
     tets = np.asarray(tets)
     alive = np.asarray(alive, dtype=bool)
-    # the nodes by edge distance from the touched ones, up to 3 k - 1 (a ring of the rows within 2 k)
+    # the nodes by edge distance from the touched ones, up to 2 k
     within = np.zeros(N, dtype=bool)
     level = np.unique(np.asarray(touched, dtype=np.int64))
     within[level] = True
     levels = [level]
-    for _ in range(3 * k - 1):
+    for _ in range(2 * k):
         near = _unique(tets[_tets_at(incidence, level, alive)].ravel().astype(np.int64))
         level = near[~within[near]]
         within[level] = True
         levels.append(level)
-    redo = np.sort(np.concatenate(levels[: 2 * k + 1]))
-    local = tets[_tets_at(incidence, np.concatenate(levels), alive)].astype(np.int64)
+    redo = np.sort(np.concatenate(levels[: k + 1]))
+    local = tets[_tets_at(incidence, np.concatenate(levels[: 2 * k]), alive)].astype(np.int64)
     keys, rings = _rings(_adjacency(local, N), redo, N, k)
     rows, cols = keys // N, keys % N
     w = (k + 1 - rings) / (k + 1)
     total = np.zeros(N)
     total[:n_old] = old_total
     total[redo] = np.bincount(rows, weights=w, minlength=N)[redo]
-    # the rows spliced: the old ones where they stand, the redone ones from the search
+    # the rows spliced: the old ones where they stand (those within 2 k weighed again), the redone ones from
+    # the search
     count = np.zeros(N, dtype=np.int64)
     count[:n_old] = np.diff(old_offsets)
     count[redo] = np.bincount(rows, minlength=N)[redo]
-    offsets = np.zeros(N + 1, dtype=np.int64)
+    offsets = np.zeros(N + 1, dtype=np.int32)
     np.cumsum(count, out=offsets[1:])
-    nodes = np.empty(int(offsets[-1]), dtype=np.int32)
-    weights = np.empty(int(offsets[-1]), dtype=np.float32)
-    kept = np.ones(n_old, dtype=bool)
-    kept[redo[redo < n_old]] = False
-    kept = np.flatnonzero(kept)
-    n = count[kept]
-    src = np.repeat(old_offsets[kept].astype(np.int64) - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))
-    dst = np.repeat(offsets[kept] - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))
-    nodes[dst], weights[dst] = old_nodes[src], old_weights[src]
+    size = int(offsets[-1])
+    nodes = np.empty(size, dtype=np.int32)
+    weights = np.empty(size, dtype=np.float32)
+    ring_of = np.empty(size, dtype=np.uint8)
+    mode = np.zeros(max(N, n_old), dtype=np.uint8)
+    mode[np.concatenate(levels[k + 1 :])] = 1
+    mode[redo] = 2
+    launch(ck.splice_rows_kernel, n_old,
+           [host_array(mode, wp.uint8), host_array(old_offsets, wp.int32), host_array(old_nodes, wp.int32),
+            host_array(old_weights, wp.float32), host_array(old_rings, wp.uint8), host_array(offsets, wp.int32),
+            host_array(total, wp.float64), int(k)],
+           [host_array(nodes, wp.int32), host_array(weights, wp.float32), host_array(ring_of, wp.uint8)],
+           "cpu", threads, min_chunk=_ROW_GRAIN)  # fmt: skip
     first = np.searchsorted(rows, rows)  # (each entry's row starts at its first entry: rows ascend)
     at = offsets[rows] + np.arange(len(rows)) - first
     nodes[at] = cols
     weights[at] = (w / total[cols]).astype(np.float32)
-    return offsets.astype(np.int32), nodes, weights, total
+    ring_of[at] = rings
+    return offsets, nodes, weights, total, ring_of
+
+
+#: rows of a spread per launch piece when it is followed over an edit (a row is some tens of entries)
+_ROW_GRAIN = 4096
 
 
 @dataclass(frozen=True, eq=False)
@@ -388,12 +425,16 @@ class Contact:
         # (the face keys below take three node indices in an int64)
         self._incidence = e.incidence() if local else None
         # the boundary layer (the tets with a node on the boundary) and every tet's edge lengths (T, 6)
+        # (the live tets' edge lengths are kept sorted: a local edit's median is then the sorted lengths
+        # spliced, not a selection over all of them again)
+        ordered = None
         if local:
             near, mask, around = self._layer_after(live, e.touched_nodes, self._incidence)
             lengths = np.empty((e.tet_count, 6), dtype=np.float32)
             lengths[: len(self._lengths)] = self._lengths
             redo = np.union1d(around, np.arange(len(self._lengths), e.tet_count))
             lengths[redo] = _edge_lengths(e.rest_host, e.tets_host[redo])
+            ordered = _sorted_after(self._sorted_lengths, self._lengths, self._live, lengths, live, redo)
         else:
             t = e.tets_host[live]
             near = np.zeros(e.node_count, dtype=bool)
@@ -401,9 +442,13 @@ class Contact:
             mask = np.zeros(e.tet_count, dtype=bool)
             mask[live] = rows_any(near[t])
             lengths = _edge_lengths(e.rest_host, e.tets_host)
+        if ordered is None:
+            ordered = np.sort(lengths[live], axis=None)
         self._near, self._layer_mask, self._lengths, self._live = near, mask, lengths, live
-        # (a tet's rows are its own: the median of the live tets' edges as one pass over them gives it)
-        self.edge = float(np.median(lengths[live]))
+        self._sorted_lengths = ordered
+        # the median of the live tets' edges, as ``np.median`` takes it: the mean of the middle one or two
+        half = len(ordered) // 2
+        self.edge = float(np.mean(ordered[half - 1 + len(ordered) % 2 : half + 1]))
         self.band = BAND * self.edge
         layer = np.flatnonzero(mask).astype(np.int32)
         self._layer = wp.array(layer, dtype=wp.int32, device=self.device)
@@ -483,7 +528,7 @@ class Contact:
             before = self._rings_before.get(k)
             if before is not None and self._follow is not None:
                 self._rings[k] = ring_spread_after(before, e.tets_host, live, e.node_count, k, self._follow,
-                                                   self._incidence)  # fmt: skip
+                                                   self._incidence, self.threads)  # fmt: skip
             else:
                 self._rings[k] = _ring_spread(e.tets_host, live, e.node_count, k)
         return self._rings[k]
@@ -528,10 +573,12 @@ class Contact:
         G = self.group_count
         rings = [self._ring(kr) for kr in krings] or [self._ring(0)]
         base = np.cumsum([0] + [len(r[1]) for r in rings[:-1]])
-        self._ring_offsets = wp.array(np.concatenate([r[0] + b for r, b in zip(rings, base)]), dtype=wp.int32,
-                                      device=dev)  # fmt: skip
-        self._ring_nodes = wp.array(np.concatenate([r[1] for r in rings]), dtype=wp.int32, device=dev)
-        self._ring_weights = wp.array(np.concatenate([r[2] for r in rings]), dtype=float, device=dev)
+        # (one group: the spread's own arrays, shared on the CPU, not copied; nothing writes them)
+        offsets, nodes, weights = (np.concatenate(c) if len(c) > 1 else c[0]
+                                   for c in zip(*[(r[0] + b, r[1], r[2]) for r, b in zip(rings, base)]))  # fmt: skip
+        self._ring_offsets = device_array(offsets.astype(np.int32, copy=False), wp.int32, dev, copy=False)
+        self._ring_nodes = device_array(nodes, wp.int32, dev, copy=False)
+        self._ring_weights = device_array(weights, float, dev, copy=False)
         self._source_force = vec(G * N)
         self._source_block = wp.zeros(G * N, dtype=wp.mat33, device=dev)
         self._source_weight = wp.zeros(G * N, dtype=float, device=dev)

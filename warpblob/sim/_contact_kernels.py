@@ -494,3 +494,40 @@ def tool_forces_kernel(
     totals[k] = total
     counts[k] = count
     deepest[k] = most
+
+
+@wp.kernel(enable_backward=False)
+def splice_rows_kernel(
+    mode: wp.array(dtype=wp.uint8),
+    old_offsets: wp.array(dtype=wp.int32),
+    old_nodes: wp.array(dtype=wp.int32),
+    old_weights: wp.array(dtype=wp.float32),
+    old_rings: wp.array(dtype=wp.uint8),
+    offsets: wp.array(dtype=wp.int32),
+    total: wp.array(dtype=wp.float64),
+    k: int,
+    offset: int,
+    nodes: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=wp.float32),
+    rings: wp.array(dtype=wp.uint8),
+):
+    """Row ``r`` of a k-ring spread followed over a local edit (:func:`warpblob.sim._contact.ring_spread_after`)
+    from the row before it: ``mode`` 0 copies it, 1 copies its nodes and rings and weighs them again by the
+    new sums, ``w(r) / Z_c`` in float64 rounded to float32 (numpy's operations, the same bits); 2 leaves it
+    (a row found again by the search, written on the host)."""
+    r = wp.tid() + offset
+    m = int(mode[r])
+    if m == 2:
+        return
+    src = old_offsets[r]
+    dst = offsets[r]
+    for j in range(old_offsets[r + 1] - src):
+        c = old_nodes[src + j]
+        ring = old_rings[src + j]
+        nodes[dst + j] = c
+        rings[dst + j] = ring
+        if m == 0:
+            weights[dst + j] = old_weights[src + j]
+        else:
+            w = wp.float64(k + 1 - int(ring)) / wp.float64(k + 1)
+            weights[dst + j] = wp.float32(w / total[c])
