@@ -49,6 +49,14 @@ each frame's strip is cut (``collect=False``) and the simulation follows it
 both, over the frames after the first, of the fastest of ``SIM_RUNS`` (3) such
 simulations by that median (the JSON keeps every run's median frame).
 
+Scalpel and probe (``sim_contact`` rows): the same frames in a simulation
+that also has a contact tool, a probe of radius 0.4 cm pressing the box's
+top 0.1 cm deep near a corner (at x = y = 0.8 cm, away from the strip; a
+``wb.Box`` of radius 0.3 whose surface is the box's as the contact's model,
+no gravity), stepped 6 times before
+the first frame: each rebuild then also follows the contact's k-ring
+spread, boundary layer and median edge over the cut (``Contact.bind``).
+
 Drill (``drill`` rows; issue 15): a bone plate ``box_tetmesh`` of
 [0, 4] x [0, 4] x [0, 0.6] (cm; about 10K, 66K, the thesis skull's size, and
 500K tets) and a trephine (``wb.tools.Drill``, radius 0.5 cm, N = 8, 16, 32
@@ -94,6 +102,7 @@ import warpblob as wb  # noqa: E402
 from warpblob.cut import STAGES, SweepSurface, cut  # noqa: E402
 from warpblob.cut._sim import apply_cut  # noqa: E402
 from warpblob.mesh import TetStructure, box_tetmesh  # noqa: E402
+from warpblob.tree import ISO_DISTANCE  # noqa: E402
 from _common import Run, arguments, table, wall_time  # noqa: E402
 
 #: the box, model units (cm)
@@ -134,15 +143,46 @@ SIM_FRAMES = 9
 SIM_RUNS = 3
 
 
-def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS) -> dict:
+#: the ``sim_contact`` rows' probe: radius (cm), where it presses the top face (x, y; away from the strip),
+#: from how far above to how deep (cm), over how long (s), its stiffness, and the steps before the first frame
+PROBE_RADIUS, PROBE_AT, PROBE_FROM, PROBE_DEPTH, PROBE_TIME, PROBE_STIFFNESS, PROBE_STEPS = (
+    0.4, (0.8, 0.8), 0.02, 0.1, 0.2, 1e4, 6)
+
+
+#: the radius of the ``sim_contact`` rows' box model (cm)
+BOX_RADIUS = 0.3
+
+
+def _with_probe(sim: wb.Simulation) -> int:
+    """The ``sim_contact`` rows' probe on ``sim`` (pressing the box's top near a corner, away from the
+    scalpel's strip), stepped until it presses: every later rebuild binds the contact to the cut mesh. The
+    nodes in contact after those steps."""
+    x, y = PROBE_AT
+    path = wb.tools.Path.line((x, y, SIDE + PROBE_FROM), (x, y, SIDE - PROBE_DEPTH), PROBE_TIME)
+    sim.add_tool(wb.tools.Probe(PROBE_RADIUS), path, stiffness=PROBE_STIFFNESS)
+    sim.step(PROBE_STEPS)
+    return len(sim.contact_nodes())
+
+
+def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS, contact: bool = False) -> dict:
     """The scalpel's frames in a simulation of the mesh: per frame the strip it sweeps is cut
     (``collect=False``) and the simulation follows the cut (``apply_cut``), frame after frame on one
     simulation; medians over the frames after the first (ms), of the fastest of ``runs`` simulations (by
-    the median frame; every run's median frame is kept too)."""
+    the median frame; every run's median frame is kept too). ``contact``: a probe presses the box too
+    (:func:`_with_probe`), so each rebuild also follows the contact's spread and boundary layer over the cut
+    (the ``sim_contact`` rows)."""
     rows = []
     for _ in range(runs):
         s = TetStructure.from_tetmesh(mesh)
-        sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0)
+        pressed = 0
+        if contact:  # (the contact's field: a box model whose surface is the mesh's, its skeleton inside by
+            # the iso distance of its radius)
+            inner = 0.5 * SIDE - ISO_DISTANCE * BOX_RADIUS
+            sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0, gravity=(0, 0, 0),
+                                model=wb.Box((0.5 * SIDE,) * 3, (inner,) * 3, BOX_RADIUS))  # fmt: skip
+            pressed = _with_probe(sim)
+        else:
+            sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0)
         cut_ms, fem_ms = [], []
         for frame in range(SIM_FRAMES):
             sweep = stroke_step(frame)
@@ -155,10 +195,11 @@ def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS) -> dict:
                 cut_ms.append(1e3 * (t1 - t0))
                 fem_ms.append(1e3 * (t2 - t1))
         total = np.add(cut_ms, fem_ms)
-        rows.append({"case": "sim", "tets": mesh.tet_count, "frames": SIM_FRAMES - 1,
+        rows.append({"case": "sim_contact" if contact else "sim", "tets": mesh.tet_count, "frames": SIM_FRAMES - 1,
                      "cut_ms_median": float(np.median(cut_ms)), "fem_ms_median": float(np.median(fem_ms)),
                      "step_ms_median": float(np.median(total)), "step_ms_max": float(total.max()),
-                     "tets_after": sim.tet_count})  # fmt: skip
+                     "tets_after": sim.tet_count,
+                     **({"contact_nodes": pressed} if contact else {})})  # fmt: skip
     best = min(rows, key=lambda row: row["step_ms_median"])
     return {**best, "runs": runs, "runs_step_ms_median": [row["step_ms_median"] for row in rows]}
 
@@ -332,13 +373,15 @@ def main(argv=None):
     cols += [("vtk_inverted_share", "vtk inv", ".1%"), ("speedup_vs_vtk_clip", "x clip", ".2f")]
     cols += [("speedup_vs_vtk_clip_triangulated", "x clip+tri", ".2f")]
     print(table(rows, cols))
-    sims = [run_sim_stroke(box(int(size))) for size in args.sizes.split(",") if size]
+    sims = [run_sim_stroke(box(int(size)), contact=contact) for contact in (False, True)
+            for size in args.sizes.split(",") if size]  # fmt: skip
     print(table(sims, [("case", "case", "s"), ("tets", "tets", ",d"), ("frames", "frames", "d"),
                        ("cut_ms_median", "cut ms", ".1f"), ("fem_ms_median", "fem ms", ".1f"),
                        ("step_ms_median", "cut + fem ms", ".1f"), ("step_ms_max", "max", ".1f")]))  # fmt: skip
     print(f"sim: the scalpel's frames in a simulation of the box ({SIM_FRAMES - 1} frames after a first): each "
           f"frame's strip cut, then apply_cut; medians of the fastest of {SIM_RUNS} simulations (every run's median "
-          "frame in the JSON)")  # fmt: skip
+          "frame in the JSON); sim_contact: the same with a probe pressing the box's top (each rebuild also "
+          "follows the contact over the cut)")  # fmt: skip
     rows += sims
     drills = [run_drill(int(size), int(n)) for size in args.drill_sizes.split(",") if size
               for n in args.segments.split(",")]  # fmt: skip

@@ -245,8 +245,9 @@ def test_a_rebuild_clears_the_contact_arrays_a_contact_pass_wrote():
 @pytest.mark.parametrize("k", [1, 2, 3])
 def test_the_ring_spread_follows_cuts_bit_for_bit(k):
     """The contact's k-ring spread followed over a cut's rebuild (ring_spread_after: the rows within 2 k of the
-    changed tets' corners found again, the rest copied) equals the spread made anew, offsets, nodes, weights
-    and sums bit for bit, over five random strokes (new nodes, dead tets, pieces coming apart)."""
+    changed tets' corners found again, those within 2 k weighed again, the rest copied) equals the spread made
+    anew, offsets, nodes, weights, sums and rings bit for bit, over five random strokes (new nodes, dead tets,
+    pieces coming apart), from the packed incidence and from its lists as the elements keep them."""
     from warpblob.sim._contact import _ring_spread, ring_spread_after
 
     box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (10, 5, 5))
@@ -262,10 +263,12 @@ def test_the_ring_spread_follows_cuts_bit_for_bit(k):
         sim.apply_cut(r)
         live = e.alive_host & (e.volume.numpy() > 0)
         fresh = _ring_spread(e.tets_host, live, e.node_count, k)
-        followed = ring_spread_after(before, e.tets_host, live, e.node_count, k, e.touched_nodes, e.incidence())
-        for a_, b_ in zip(fresh, followed):
-            assert a_.dtype == b_.dtype
-            np.testing.assert_array_equal(a_, b_)
+        for incidence in (e.incidence(), e.incidence_lists()):  # (packed, and the lists where they are kept)
+            followed = ring_spread_after(before, e.tets_host, live, e.node_count, k, e.touched_nodes, incidence)
+            assert len(followed) == len(fresh) == 5
+            for a_, b_ in zip(fresh, followed):
+                assert a_.dtype == b_.dtype
+                np.testing.assert_array_equal(a_, b_)
     assert e.node_count > len(box.nodes)
 
 

@@ -152,10 +152,15 @@ def sample_areas(tool: Tool, points: np.ndarray) -> np.ndarray:
 
 def _tets_at(incidence: tuple, nodes: np.ndarray, live: np.ndarray) -> np.ndarray:
     """The live tets at ``nodes`` (int64), ascending, from an incidence ``(offsets, corners)``
-    (:meth:`~warpblob.sim._elements.Elements.incidence`)."""
-    offsets, corners = incidence
-    count = offsets[nodes + 1] - offsets[nodes]
-    start = np.repeat(offsets[nodes] - (np.cumsum(count) - count), count)
+    (:meth:`~warpblob.sim._elements.Elements.incidence`) or ``(ranges, lists)``
+    (:meth:`~warpblob.sim._elements.Elements.incidence_lists`: (N, 2) ranges, the lists where they are kept)."""
+    first, corners = incidence
+    if first.ndim == 2:
+        begin, end = first[nodes, 0].astype(np.int64), first[nodes, 1]
+    else:
+        begin, end = first[nodes].astype(np.int64), first[nodes + 1]
+    count = end - begin
+    start = np.repeat(begin - (np.cumsum(count) - count), count)
     t = _unique(corners[start + np.arange(int(count.sum()))] // 4)
     return t[live[t]]
 
@@ -231,7 +236,9 @@ def _adjacency(live: np.ndarray, N: int) -> tuple:
     """The edges of the (L, 4) int64 tets ``live`` as a CSR over ``N`` nodes: ``(offsets (N + 1,), columns)``."""
     pairs = live[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
     keys = _unique(np.concatenate([pairs[:, 0] * N + pairs[:, 1], pairs[:, 1] * N + pairs[:, 0]]))
-    return np.searchsorted(keys // N, np.arange(N + 1)), keys % N
+    offsets = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(np.bincount(keys // N, minlength=N), out=offsets[1:])
+    return offsets, keys % N
 
 
 def _rings(adjacency: tuple, sources: np.ndarray, N: int, k: int) -> tuple:
@@ -269,7 +276,7 @@ def ring_spread_after(previous: tuple, tets: np.ndarray, alive: np.ndarray, node
     before and after it (a shortest path to them needs no edge between two of them). So a row's ring
     structure (its nodes and their rings) changes only within ``k`` edges of them: those rows are found
     again by the same search, from those nodes only, over the live tets round them (``incidence``: the live
-    tets' :meth:`~warpblob.sim._elements.Elements.incidence`), which gives their sums ``Z`` too. The rows
+    tets' incidence, packed or as kept: :func:`_tets_at`), which gives their sums ``Z`` too. The rows
     within ``2 k`` hold such a node and keep their structure: their weights ``w(r) / Z_c`` are taken again
     from their rings and the new sums. Every other row is copied. Copying and weighing run in one kernel over
     the rows (:func:`~warpblob.sim._contact_kernels.splice_rows_kernel`). The result is :func:`_ring_spread`'s,
@@ -423,7 +430,7 @@ class Contact:
                  and e.touched_nodes is not None and len(self._near) <= e.node_count
                  and len(self._layer_mask) <= e.tet_count and e.node_count < 2_000_000)  # fmt: skip
         # (the face keys below take three node indices in an int64)
-        self._incidence = e.incidence() if local else None
+        self._incidence = e.incidence_lists() if local else None
         # the boundary layer (the tets with a node on the boundary) and every tet's edge lengths (T, 6)
         # (the live tets' edge lengths are kept sorted: a local edit's median is then the sorted lengths
         # spliced, not a selection over all of them again)

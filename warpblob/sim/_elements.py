@@ -407,6 +407,12 @@ class Elements:
         slots = np.repeat(r[:, 0] - offsets[:-1], counts) + np.arange(int(offsets[-1]))
         return offsets, lists[slots]
 
+    def incidence_lists(self) -> tuple[np.ndarray, np.ndarray]:
+        """The incidence as it is kept, lists with room, not packed: ``(ranges (N, 2) int32, lists)`` on the
+        host; node ``i``'s corners are ``lists[ranges[i, 0]:ranges[i, 1]]`` (:meth:`incidence` packs them,
+        a pass over every list). Valid until the next edit of the elements."""
+        return self._range_host, self.node_corners.numpy()
+
     def _update_incidence(self, ids: np.ndarray, touched: np.ndarray) -> None:
         """The incidence after tets ``ids`` changed: the lists of the ``touched`` nodes (every corner of those
         tets, old and new; ascending) merged anew, in place where they fit in their slots, else in the free
