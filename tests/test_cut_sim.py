@@ -1,5 +1,6 @@
 """Cutting a running simulation: element data follow the cut, a severed piece falls freely."""
 
+import copy
 import numpy as np
 import pytest
 import warp as wp
@@ -264,9 +265,11 @@ def test_the_ring_spread_follows_cuts_bit_for_bit(k):
         live = e.alive_host & (e.volume.numpy() > 0)
         fresh = _ring_spread(e.tets_host, live, e.node_count, k)
         for incidence in (e.incidence(), e.incidence_lists()):  # (packed, and the lists where they are kept)
-            followed = ring_spread_after(before, e.tets_host, live, e.node_count, k, e.touched_nodes, incidence)
-            assert len(followed) == len(fresh) == 5
-            for a_, b_ in zip(fresh, followed):
+            # (a follow edits the spread in place: each from its own copy)
+            followed = ring_spread_after(copy.deepcopy(before), e.tets_host, live, e.node_count, k, e.touched_nodes,
+                                         incidence)  # fmt: skip
+            assert len(followed.packed()) == len(fresh.packed()) == 5
+            for a_, b_ in zip(fresh.packed(), followed.packed()):
                 assert a_.dtype == b_.dtype
                 np.testing.assert_array_equal(a_, b_)
     assert e.node_count > len(box.nodes)
@@ -285,10 +288,10 @@ def test_a_contact_follows_a_cut_and_binds_anew_after_any_other_edit():
     assert contact._follow is not None and 2 in contact._rings_before
     e = sim.elements
     fresh = _ring_spread(e.tets_host, e.alive_host & (e.volume.numpy() > 0), e.node_count, 2)
-    for a_, b_ in zip(fresh, contact._rings[2]):
+    for a_, b_ in zip(fresh.packed(), contact._rings[2].packed()):
         np.testing.assert_array_equal(a_, b_)
     sim.rebuild()  # (every tet: every node touched)
-    for a_, b_ in zip(fresh, contact._rings[2]):
+    for a_, b_ in zip(fresh.packed(), contact._rings[2].packed()):
         np.testing.assert_array_equal(a_, b_)
 
 
@@ -320,7 +323,7 @@ def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
         assert contact.edge == float(np.median(np.linalg.norm(edges, axis=2)))  # (the live tets' median edge)
         # (the lengths it keeps sorted to take it: a regular box's median hardly moves with a few of them)
         np.testing.assert_array_equal(contact._sorted_lengths, np.sort(np.linalg.norm(edges, axis=2), axis=None))
-        for a_, b_ in zip(_ring_spread(e.tets_host, live, e.node_count, 2), contact._rings[2]):
+        for a_, b_ in zip(_ring_spread(e.tets_host, live, e.node_count, 2).packed(), contact._rings[2].packed()):
             np.testing.assert_array_equal(a_, b_)
     assert e.node_count > len(box.nodes)
 

@@ -213,23 +213,53 @@ def ring_spread(tets: np.ndarray, alive: np.ndarray, node_count: int, k: int):
     nodes at once (vectorized numpy: a set-up cost, paid again only when the
     topology changes; :func:`ring_spread_after` follows a local edit).
     """
-    return _ring_spread(tets, alive, node_count, k)[:3]
+    return _ring_spread(tets, alive, node_count, k).packed()[:3]
 
 
-def _ring_spread(tets, alive, node_count: int, k: int) -> tuple:
-    """:func:`ring_spread`, the (N,) float64 sums ``Z`` and the ring of each entry (uint8)."""
+class _Spread:
+    """A k-ring spread kept as rows with room (as the elements keep their incidence), so that a local edit
+    rewrites only the rows it changes.
+
+    Row ``j``'s entries are ``nodes``/``weights``/``rings`` ``[ranges[j, 0], ranges[j, 1])`` (int32,
+    float32, uint8: the nodes of its rings, ``W[j, c]`` and the ring of each); its slot holds ``room[j]``
+    entries from ``ranges[j, 0]``; entries from ``tail`` on are free. ``total``: (N,) float64 the sums ``Z``.
+    Made packed by :func:`_ring_spread`, followed in place by :func:`ring_spread_after`.
+    """
+
+    __slots__ = ("ranges", "room", "nodes", "weights", "rings", "total", "tail")
+
+    def __init__(self, offsets: np.ndarray, nodes: np.ndarray, weights: np.ndarray, total: np.ndarray,
+                 rings: np.ndarray):  # fmt: skip
+        self.ranges = np.ascontiguousarray(np.stack([offsets[:-1], offsets[1:]], axis=1), dtype=np.int32)
+        self.room = np.diff(offsets).astype(np.int32)
+        self.nodes, self.weights, self.rings, self.total = nodes, weights, rings, total
+        self.tail = len(nodes)
+
+    def packed(self) -> tuple:
+        """The spread as a packed CSR: ``(offsets (N + 1,) int32, nodes, weights, total, rings)``."""
+        r = self.ranges
+        count = r[:, 1] - r[:, 0]
+        offsets = np.zeros(len(r) + 1, dtype=np.int32)
+        np.cumsum(count, out=offsets[1:])
+        at = np.repeat(r[:, 0].astype(np.int64) - offsets[:-1], count) + np.arange(int(offsets[-1]))
+        return offsets, self.nodes[at], self.weights[at], self.total, self.rings[at]
+
+
+def _ring_spread(tets, alive, node_count: int, k: int) -> _Spread:
+    """:func:`ring_spread` with the (N,) float64 sums ``Z`` and the ring of each entry, as a :class:`_Spread`."""
     N = int(node_count)
     if k == 0:
         nodes = np.arange(N, dtype=np.int32)
-        return (np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32), np.ones(N),
-                np.zeros(N, dtype=np.uint8))  # fmt: skip
+        return _Spread(np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32), np.ones(N),
+                       np.zeros(N, dtype=np.uint8))  # fmt: skip
     live = np.asarray(tets)[np.asarray(alive, dtype=bool)].astype(np.int64)
     keys, rings = _rings(_adjacency(live, N), np.arange(N, dtype=np.int64), N, k)
     rows, cols = keys // N, keys % N
     w = (k + 1 - rings) / (k + 1)
     total = np.bincount(rows, weights=w, minlength=N)
-    offsets = np.searchsorted(rows, np.arange(N + 1)).astype(np.int32)
-    return offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32), total, rings.astype(np.uint8)
+    offsets = np.zeros(N + 1, dtype=np.int32)
+    np.cumsum(np.bincount(rows, minlength=N), out=offsets[1:])
+    return _Spread(offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32), total, rings.astype(np.uint8))
 
 
 def _adjacency(live: np.ndarray, N: int) -> tuple:
@@ -267,24 +297,25 @@ def _rings(adjacency: tuple, sources: np.ndarray, N: int, k: int) -> tuple:
     return keys[order], rings[order]
 
 
-def ring_spread_after(previous: tuple, tets: np.ndarray, alive: np.ndarray, node_count: int, k: int,
-                      touched: np.ndarray, incidence: tuple, threads=None) -> tuple:  # fmt: skip
+def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node_count: int, k: int,
+                      touched: np.ndarray, incidence: tuple, threads=None) -> _Spread:  # fmt: skip
     """:func:`_ring_spread` after an edit that changed only tets whose corners (old and new, and every added
-    node) are ``touched``, from ``previous`` (its result before the edit), recomputing only what can change.
+    node) are ``touched``, from ``spread`` (its result before the edit), recomputing only what can change;
+    ``spread`` is edited in place and returned (or, after an edit of much of the mesh, a new one made).
 
     The edit changes edges between touched nodes only, and a node's edge distance to them is the same
     before and after it (a shortest path to them needs no edge between two of them). So a row's ring
     structure (its nodes and their rings) changes only within ``k`` edges of them: those rows are found
     again by the same search, from those nodes only, over the live tets round them (``incidence``: the live
-    tets' incidence, packed or as kept: :func:`_tets_at`), which gives their sums ``Z`` too. The rows
-    within ``2 k`` hold such a node and keep their structure: their weights ``w(r) / Z_c`` are taken again
-    from their rings and the new sums. Every other row is copied. Copying and weighing run in one kernel over
-    the rows (:func:`~warpblob.sim._contact_kernels.splice_rows_kernel`). The result is :func:`_ring_spread`'s,
-    bit for bit (the sums are taken in the same order).
+    tets' incidence, packed or as kept: :func:`_tets_at`), which gives their sums ``Z`` too, and written in
+    their slots (or, where they outgrew them, at the tail with room to grow). The rows within ``2 k`` hold
+    such a node and keep their structure: their weights ``w(r) / Z_c`` are taken again from their rings and
+    the new sums, in place (:func:`~warpblob.sim._contact_kernels.reweigh_rows_kernel`). No other row is
+    touched. The result is :func:`_ring_spread`'s, bit for bit (:meth:`_Spread.packed`; the sums are taken
+    in the same order).
     """
     N = int(node_count)
-    old_offsets, old_nodes, old_weights, old_total, old_rings = previous
-    n_old = len(old_offsets) - 1
+    n_old = len(spread.ranges)
     if k == 0 or n_old > N or 8 * len(touched) > N:  # (an edit of much of the mesh: made anew)
         return _ring_spread(tets, alive, N, k)
     tets = np.asarray(tets)
@@ -304,39 +335,46 @@ def ring_spread_after(previous: tuple, tets: np.ndarray, alive: np.ndarray, node
     keys, rings = _rings(_adjacency(local, N), redo, N, k)
     rows, cols = keys // N, keys % N
     w = (k + 1 - rings) / (k + 1)
-    total = np.zeros(N)
-    total[:n_old] = old_total
+    # the per-row arrays grown to the added nodes (their rows are redone: every added node is touched)
+    if N > n_old:
+        spread.ranges = np.concatenate([spread.ranges, np.zeros((N - n_old, 2), dtype=np.int32)])
+        spread.room = np.concatenate([spread.room, np.zeros(N - n_old, dtype=np.int32)])
+        spread.total = np.concatenate([spread.total, np.zeros(N - n_old)])
+    total = spread.total
     total[redo] = np.bincount(rows, weights=w, minlength=N)[redo]
-    # the rows spliced: the old ones where they stand (those within 2 k weighed again), the redone ones from
-    # the search
-    count = np.zeros(N, dtype=np.int64)
-    count[:n_old] = np.diff(old_offsets)
-    count[redo] = np.bincount(rows, minlength=N)[redo]
-    offsets = np.zeros(N + 1, dtype=np.int32)
-    np.cumsum(count, out=offsets[1:])
-    size = int(offsets[-1])
-    nodes = np.empty(size, dtype=np.int32)
-    weights = np.empty(size, dtype=np.float32)
-    ring_of = np.empty(size, dtype=np.uint8)
-    mode = np.zeros(max(N, n_old), dtype=np.uint8)
-    mode[np.concatenate(levels[k + 1 :])] = 1
-    mode[redo] = 2
-    launch(ck.splice_rows_kernel, n_old,
-           [host_array(mode, wp.uint8), host_array(old_offsets, wp.int32), host_array(old_nodes, wp.int32),
-            host_array(old_weights, wp.float32), host_array(old_rings, wp.uint8), host_array(offsets, wp.int32),
-            host_array(total, wp.float64), int(k)],
-           [host_array(nodes, wp.int32), host_array(weights, wp.float32), host_array(ring_of, wp.uint8)],
-           "cpu", threads, min_chunk=_ROW_GRAIN)  # fmt: skip
-    first = np.searchsorted(rows, rows)  # (each entry's row starts at its first entry: rows ascend)
-    at = offsets[rows] + np.arange(len(rows)) - first
-    nodes[at] = cols
-    weights[at] = (w / total[cols]).astype(np.float32)
-    ring_of[at] = rings
-    return offsets, nodes, weights, total, ring_of
+    # the redone rows (every one holds its own node: rows ascend through redo) in their slots where they fit,
+    # else at the tail with half as much room again
+    count = np.bincount(rows, minlength=N)[redo].astype(np.int64)
+    moved = spread.room[redo] < count
+    size = count[moved] + count[moved] // 2 + 4
+    start = spread.ranges[redo, 0].astype(np.int64)
+    start[moved] = spread.tail + np.cumsum(size) - size
+    tail = spread.tail + int(size.sum())
+    if tail > len(spread.nodes):  # (room for a while: the entries' arrays grow by half)
+        capacity = max(tail, len(spread.nodes) + len(spread.nodes) // 2)
+        for name in ("nodes", "weights", "rings"):
+            grown = np.empty(capacity, dtype=getattr(spread, name).dtype)
+            grown[: spread.tail] = getattr(spread, name)[: spread.tail]
+            setattr(spread, name, grown)
+    spread.ranges[redo, 0] = start
+    spread.ranges[redo, 1] = start + count
+    spread.room[redo[moved]] = size
+    spread.tail = tail
+    at = np.repeat(start - (np.cumsum(count) - count), count) + np.arange(len(rows))
+    spread.nodes[at] = cols
+    spread.weights[at] = (w / total[cols]).astype(np.float32)
+    spread.rings[at] = rings
+    # the rows within 2 k weighed again by the new sums
+    again = np.concatenate(levels[k + 1 :]).astype(np.int32)
+    launch(ck.reweigh_rows_kernel, len(again),
+           [host_array(again, wp.int32), host_array(spread.ranges, wp.vec2i), host_array(spread.nodes, wp.int32),
+            host_array(spread.rings, wp.uint8), host_array(total, wp.float64), int(k)],
+           [host_array(spread.weights, wp.float32)], "cpu", threads, min_chunk=_ROW_GRAIN)  # fmt: skip
+    return spread
 
 
-#: rows of a spread per launch piece when it is followed over an edit (a row is some tens of entries)
-_ROW_GRAIN = 4096
+#: rows of a spread per launch piece when they are weighed again (a row is some tens of entries)
+_ROW_GRAIN = 1024
 
 
 @dataclass(frozen=True, eq=False)
@@ -472,7 +510,7 @@ class Contact:
         self._rings_before = rings if local else {}
         self._follow = e.touched_nodes if local else None
         self._bound = (e, e.revision)
-        self._rings: dict[int, tuple] = {}
+        self._rings: dict[int, _Spread] = {}
         self._tet_bvh = None
         self._node_bvh = None
         self._build_buffers()
@@ -527,7 +565,7 @@ class Contact:
         self._build_buffers()
         return record
 
-    def _ring(self, k: int) -> tuple:
+    def _ring(self, k: int) -> _Spread:
         """The k-ring spread (:func:`ring_spread`, with its sums), followed over the last rebuild from the one
         before it where that was a local edit of the element data this contact was bound to (:meth:`bind`)."""
         if k not in self._rings:
@@ -579,11 +617,16 @@ class Contact:
         self._entries = wp.zeros(8 * S, dtype=wp.int32, device=dev)
         G = self.group_count
         rings = [self._ring(kr) for kr in krings] or [self._ring(0)]
-        base = np.cumsum([0] + [len(r[1]) for r in rings[:-1]])
-        # (one group: the spread's own arrays, shared on the CPU, not copied; nothing writes them)
-        offsets, nodes, weights = (np.concatenate(c) if len(c) > 1 else c[0]
-                                   for c in zip(*[(r[0] + b, r[1], r[2]) for r, b in zip(rings, base)]))  # fmt: skip
-        self._ring_offsets = device_array(offsets.astype(np.int32, copy=False), wp.int32, dev, copy=False)
+        # (one group: the spread's own arrays, shared on the CPU, not copied; a follow rewrites them in place
+        # before the next bind makes these again)
+        if len(rings) == 1:
+            ranges, nodes, weights = rings[0].ranges, rings[0].nodes, rings[0].weights
+        else:
+            base = np.cumsum([0] + [r.tail for r in rings[:-1]])
+            ranges = np.concatenate([r.ranges + b for r, b in zip(rings, base)]).astype(np.int32)
+            nodes = np.concatenate([r.nodes[: r.tail] for r in rings])
+            weights = np.concatenate([r.weights[: r.tail] for r in rings])
+        self._ring_ranges = device_array(ranges, wp.vec2i, dev, copy=False)
         self._ring_nodes = device_array(nodes, wp.int32, dev, copy=False)
         self._ring_weights = device_array(weights, float, dev, copy=False)
         self._source_force = vec(G * N)
@@ -699,12 +742,12 @@ class Contact:
         self._source_weight.zero_()
         self._mark.zero_()
         split_launch(ck.gather_sources_kernel, 4 * S,
-                     [self._keys, self._entries, self._entry_weight, self._law, self._direction, self._ring_offsets,
+                     [self._keys, self._entries, self._entry_weight, self._law, self._direction, self._ring_ranges,
                       self._ring_nodes, 4 * S, N, G * N],
                      [self._source_force, self._source_block, self._source_weight, self._mark], dev, th,
                      _SAMPLE_GRAIN)  # fmt: skip
         split_launch(ck.spread_forces_kernel, N,
-                     [self._mark, self._ring_offsets, self._ring_nodes, self._ring_weights, self._source_force,
+                     [self._mark, self._ring_ranges, self._ring_nodes, self._ring_weights, self._source_force,
                       self._source_block, self._source_weight, G, N],
                      [solver.contact_force, solver.contact_block, solver.contact_weight], dev, th,
                      NODE_GRAIN)  # fmt: skip

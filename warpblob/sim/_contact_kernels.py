@@ -359,7 +359,7 @@ def gather_sources_kernel(
     entry_weight: wp.array(dtype=float),
     law: wp.array(dtype=wp.vec2),
     direction: wp.array(dtype=wp.vec3),
-    ring_offsets: wp.array(dtype=wp.int32),
+    ring_ranges: wp.array(dtype=wp.vec2i),
     ring_nodes: wp.array(dtype=wp.int32),
     count: int,
     node_count: int,
@@ -406,15 +406,15 @@ def gather_sources_kernel(
     source_weight[key] = w
     group = key // node_count
     node = key - group * node_count
-    row = group * (node_count + 1) + node
-    for r in range(ring_offsets[row], ring_offsets[row + 1]):
+    span = ring_ranges[group * node_count + node]
+    for r in range(span[0], span[1]):
         mark[ring_nodes[r]] = wp.uint8(1)
 
 
 @wp.kernel(enable_backward=False)
 def spread_forces_kernel(
     mark: wp.array(dtype=wp.uint8),
-    ring_offsets: wp.array(dtype=wp.int32),
+    ring_ranges: wp.array(dtype=wp.vec2i),
     ring_nodes: wp.array(dtype=wp.int32),
     ring_weights: wp.array(dtype=float),
     source_force: wp.array(dtype=wp.vec3),
@@ -434,8 +434,8 @@ def spread_forces_kernel(
     w = float(0.0)
     if mark[j] != wp.uint8(0):
         for g in range(group_count):
-            row = g * (node_count + 1) + j
-            for r in range(ring_offsets[row], ring_offsets[row + 1]):
+            span = ring_ranges[g * node_count + j]
+            for r in range(span[0], span[1]):
                 c = g * node_count + ring_nodes[r]
                 if source_weight[c] > 0.0:
                     W = ring_weights[r]
@@ -497,37 +497,21 @@ def tool_forces_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def splice_rows_kernel(
-    mode: wp.array(dtype=wp.uint8),
-    old_offsets: wp.array(dtype=wp.int32),
-    old_nodes: wp.array(dtype=wp.int32),
-    old_weights: wp.array(dtype=wp.float32),
-    old_rings: wp.array(dtype=wp.uint8),
-    offsets: wp.array(dtype=wp.int32),
+def reweigh_rows_kernel(
+    rows: wp.array(dtype=wp.int32),
+    ranges: wp.array(dtype=wp.vec2i),
+    nodes: wp.array(dtype=wp.int32),
+    rings: wp.array(dtype=wp.uint8),
     total: wp.array(dtype=wp.float64),
     k: int,
     offset: int,
-    nodes: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=wp.float32),
-    rings: wp.array(dtype=wp.uint8),
 ):
-    """Row ``r`` of a k-ring spread followed over a local edit (:func:`warpblob.sim._contact.ring_spread_after`)
-    from the row before it: ``mode`` 0 copies it, 1 copies its nodes and rings and weighs them again by the
-    new sums, ``w(r) / Z_c`` in float64 rounded to float32 (numpy's operations, the same bits); 2 leaves it
-    (a row found again by the search, written on the host)."""
-    r = wp.tid() + offset
-    m = int(mode[r])
-    if m == 2:
-        return
-    src = old_offsets[r]
-    dst = offsets[r]
-    for j in range(old_offsets[r + 1] - src):
-        c = old_nodes[src + j]
-        ring = old_rings[src + j]
-        nodes[dst + j] = c
-        rings[dst + j] = ring
-        if m == 0:
-            weights[dst + j] = old_weights[src + j]
-        else:
-            w = wp.float64(k + 1 - int(ring)) / wp.float64(k + 1)
-            weights[dst + j] = wp.float32(w / total[c])
+    """Row ``rows[i]`` of a k-ring spread weighed again in place by new sums (its nodes and rings kept,
+    :func:`warpblob.sim._contact.ring_spread_after`): ``w(r) / Z_c`` in float64 rounded to float32, numpy's
+    operations, the same bits."""
+    row = rows[wp.tid() + offset]
+    span = ranges[row]
+    for j in range(span[0], span[1]):
+        w = wp.float64(k + 1 - int(rings[j])) / wp.float64(k + 1)
+        weights[j] = wp.float32(w / total[nodes[j]])
