@@ -207,3 +207,22 @@ def test_field_contact_needs_the_model(block):
     sim.add_tool(Probe(0.4), Path.line((0, 0, 1), (0, 0, 0), 1.0), stiffness=1.0, model=MODEL)
     with pytest.raises(SimulationError, match="already has a model"):
         sim.add_tool(Probe(0.4), Path.line((0, 0, 1), (0, 0, 0), 1.0), stiffness=1.0, model=wb.scenes.peanut())
+
+
+def test_sorted_lengths_are_spliced_as_a_sort_anew_would_give_them():
+    """The contact keeps its live edge lengths sorted and splices each edit's lengths out and in
+    (``_sorted_after``): against numpy's sort of the edited multiset, with many equal values, changes at
+    both ends, nothing changed, and a value to take out that is not there (None: sorted anew)."""
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        values = rng.integers(0, 12 if trial % 2 else 1000, 500).astype(np.float32) / 7
+        ordered = np.sort(values)
+        out = rng.choice(len(values), int(rng.integers(0, 40)) if trial else 0, replace=False)
+        gone = values[out]
+        came = rng.integers(-2, 14 if trial % 2 else 1010, int(rng.integers(0, 40)) if trial else 0)
+        came = came.astype(np.float32) / 7
+        expected = np.sort(np.concatenate([np.delete(values, out), came]))
+        spliced = _contact._sorted_after(ordered, gone, came)
+        assert spliced.dtype == np.float32
+        np.testing.assert_array_equal(spliced, expected)
+    assert _contact._sorted_after(ordered, np.array([1e6], np.float32), came) is None

@@ -172,26 +172,32 @@ def _edge_lengths(rest: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.linalg.norm(edges, axis=2)
 
 
-def _sorted_after(ordered: np.ndarray, old: np.ndarray, old_live: np.ndarray, new: np.ndarray, live: np.ndarray,
-                  redo: np.ndarray) -> np.ndarray | None:  # fmt: skip
-    """The sorted edge lengths of the live tets after an edit, from ``ordered`` (those before it, ascending):
-    the lengths of the tets that died (or whose rows ``redo`` changed) taken out, those of the tets that came
-    to life (or changed) put in. ``old``/``new``: (T0, 6) / (T, 6) float32 lengths, ``old_live``/``live``
-    their live masks. None where ``ordered`` does not hold what it should (then sort anew)."""
-    T0 = len(old)
-    was = np.zeros(len(live), dtype=bool)
-    was[:T0] = old_live
-    redo = redo[redo < T0]
-    redo = redo[was[redo] & live[redo]]
-    changed = redo[np.any(old[redo] != new[redo], axis=1)]
-    gone = np.sort(np.concatenate([old[np.flatnonzero(was & ~live)].ravel(), old[changed].ravel()]))
-    came = np.sort(np.concatenate([new[np.flatnonzero(live & ~was)].ravel(), new[changed].ravel()]))
-    # each value taken out at its own slot among equal ones
+def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray) -> np.ndarray | None:
+    """``ordered`` (ascending) with the values ``gone`` taken out and ``came`` put in, ascending, by one
+    pass of slices between the changed places (not a pass per change, nor boolean masks over all of it); None
+    where a value of ``gone`` is not in ``ordered`` (then sort anew). Equal values are interchangeable, so
+    each one taken out is any of its equals, each one put in goes before the first value not below it."""
+    gone, came = np.sort(gone), np.sort(came)
+    n = len(ordered)
+    # each value taken out at its own slot among its equals
     at = np.searchsorted(ordered, gone) + (np.arange(len(gone)) - np.searchsorted(gone, gone))
-    if len(gone) and (at[-1] >= len(ordered) or np.any(ordered[np.minimum(at, len(ordered) - 1)] != gone)):
+    if len(gone) and (at[-1] >= n or np.any(ordered[np.minimum(at, n - 1)] != gone)):
         return None
-    kept = np.delete(ordered, at)
-    return np.insert(kept, np.searchsorted(kept, came), came)
+    into = np.searchsorted(ordered, came)
+    # the changes by place, an insertion before a removal at the same place (it goes before that value)
+    place = np.concatenate([into, at])
+    order = np.lexsort((np.arange(len(place)), place))
+    pieces, cur, m = [], 0, len(into)
+    for p, i in zip(place[order].tolist(), order.tolist()):
+        if p > cur:
+            pieces.append(ordered[cur:p])
+            cur = p
+        if i < m:
+            pieces.append(came[i : i + 1])
+        else:
+            cur = p + 1
+    pieces.append(ordered[cur:])
+    return np.concatenate(pieces)
 
 
 def _unique(keys: np.ndarray) -> np.ndarray:
@@ -472,21 +478,40 @@ class Contact:
         # the boundary layer (the tets with a node on the boundary) and every tet's edge lengths (T, 6)
         # (the live tets' edge lengths are kept sorted: a local edit's median is then the sorted lengths
         # spliced, not a selection over all of them again)
+        # (the lengths are kept in a base with room, rows of new tets appended in place)
         ordered = None
+        T = e.tet_count
         if local:
             near, mask, around = self._layer_after(live, e.touched_nodes, self._incidence)
-            lengths = np.empty((e.tet_count, 6), dtype=np.float32)
-            lengths[: len(self._lengths)] = self._lengths
-            redo = np.union1d(around, np.arange(len(self._lengths), e.tet_count))
+            T0 = len(self._lengths)
+            if T > len(self._lengths_base):
+                grown = np.empty((T + T // 2, 6), dtype=np.float32)
+                grown[:T0] = self._lengths
+                self._lengths_base = grown
+            lengths = self._lengths_base[:T]
+            # the rows of the tets round the touched nodes and the new ones, the old ones kept: the live
+            # tets whose rows changed give their old lengths back and their new ones in, the tets that died
+            # (rows left as they were) their lengths back, the new live tets theirs in
+            redo = np.union1d(around, np.arange(T0, T))
+            stay = redo[redo < T0]
+            before = lengths[stay]
             lengths[redo] = _edge_lengths(e.rest_host, e.tets_host[redo])
-            ordered = _sorted_after(self._sorted_lengths, self._lengths, self._live, lengths, live, redo)
+            was = np.zeros(T, dtype=bool)
+            was[:T0] = self._live
+            both = was[stay] & live[stay]
+            differ = np.any(before[both] != lengths[stay[both]], axis=1)
+            gone = np.concatenate([lengths[was & ~live].ravel(), before[both][differ].ravel()])
+            came = np.concatenate([lengths[live & ~was].ravel(), lengths[stay[both][differ]].ravel()])
+            ordered = _sorted_after(self._sorted_lengths, gone, came)
         else:
             t = e.tets_host[live]
             near = np.zeros(e.node_count, dtype=bool)
             near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
-            mask = np.zeros(e.tet_count, dtype=bool)
+            mask = np.zeros(T, dtype=bool)
             mask[live] = rows_any(near[t])
-            lengths = _edge_lengths(e.rest_host, e.tets_host)
+            self._lengths_base = np.empty((T + T // 8 + 16, 6), dtype=np.float32)
+            lengths = self._lengths_base[:T]
+            lengths[:] = _edge_lengths(e.rest_host, e.tets_host)
         if ordered is None:
             ordered = np.sort(lengths[live], axis=None)
         self._near, self._layer_mask, self._lengths, self._live = near, mask, lengths, live
