@@ -225,4 +225,7 @@ def test_sorted_lengths_are_spliced_as_a_sort_anew_would_give_them():
         spliced = _contact._sorted_after(ordered, gone, came)
         assert spliced.dtype == np.float32
         np.testing.assert_array_equal(spliced, expected)
+        room = np.full(len(expected) + trial % 3, np.nan, dtype=np.float32)  # (written at its start)
+        np.testing.assert_array_equal(_contact._sorted_after(ordered, gone, came, room), expected)
+        np.testing.assert_array_equal(room[: len(expected)], expected)
     assert _contact._sorted_after(ordered, np.array([1e6], np.float32), came) is None

@@ -172,11 +172,14 @@ def _edge_lengths(rest: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.linalg.norm(edges, axis=2)
 
 
-def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray) -> np.ndarray | None:
+def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray, out: np.ndarray | None = None
+                  ) -> np.ndarray | None:  # fmt: skip
     """``ordered`` (ascending) with the values ``gone`` taken out and ``came`` put in, ascending, by one
     pass of slices between the changed places (not a pass per change, nor boolean masks over all of it); None
     where a value of ``gone`` is not in ``ordered`` (then sort anew). Equal values are interchangeable, so
-    each one taken out is any of its equals, each one put in goes before the first value not below it."""
+    each one taken out is any of its equals, each one put in goes before the first value not below it.
+    ``out``: a 1-D array of room, not ``ordered``'s memory, to write the result at its start (a view of it is
+    returned; memory in use is not faulted in again, as a new array's is); too small or None: a new array."""
     gone, came = np.sort(gone), np.sort(came)
     n = len(ordered)
     # each value taken out at its own slot among its equals
@@ -197,7 +200,10 @@ def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray) -> np
         else:
             cur = p + 1
     pieces.append(ordered[cur:])
-    return np.concatenate(pieces)
+    size = n - len(gone) + len(came)
+    if out is None or len(out) < size:
+        return np.concatenate(pieces)
+    return np.concatenate(pieces, out=out[:size])
 
 
 def _unique(keys: np.ndarray) -> np.ndarray:
@@ -502,7 +508,15 @@ class Contact:
             differ = np.any(before[both] != lengths[stay[both]], axis=1)
             gone = np.concatenate([lengths[was & ~live].ravel(), before[both][differ].ravel()])
             came = np.concatenate([lengths[live & ~was].ravel(), lengths[stay[both][differ]].ravel()])
-            ordered = _sorted_after(self._sorted_lengths, gone, came)
+            # (into the other of two bases with room: the one of the bind before holds ``_sorted_lengths``)
+            size = len(self._sorted_lengths) - len(gone) + len(came)
+            spare = self._sorted_spare
+            if spare is None or len(spare) < size:
+                spare = np.empty(size + size // 8, dtype=np.float32)
+            ordered = _sorted_after(self._sorted_lengths, gone, came, spare)
+            if ordered is not None:
+                self._sorted_spare = self._sorted_base
+                self._sorted_base = spare
         else:
             t = e.tets_host[live]
             near = np.zeros(e.node_count, dtype=bool)
@@ -514,6 +528,7 @@ class Contact:
             lengths[:] = _edge_lengths(e.rest_host, e.tets_host)
         if ordered is None:
             ordered = np.sort(lengths[live], axis=None)
+            self._sorted_base, self._sorted_spare = ordered, None
         self._near, self._layer_mask, self._lengths, self._live = near, mask, lengths, live
         self._sorted_lengths = ordered
         # the median of the live tets' edges, as ``np.median`` takes it: the mean of the middle one or two
