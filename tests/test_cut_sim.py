@@ -175,9 +175,10 @@ def _cut_simulation():
 def test_the_rows_a_rebuild_keeps_are_written_before_they_are_read():
     """A rebuild after a cut keeps, without clearing them, the old rows of the buffers that a step writes at
     every node before reading (the solver's system, CG vectors and filter; the other position and velocity
-    buffers; the moved flags; the coarse space's modes): poisoned with NaN there, the next steps of a
-    simulation on the ground give the same positions, velocities and stats, bit for bit, as the
-    same simulation not poisoned; the ones that must be zero after a rebuild (the contact arrays) are."""
+    buffers; the moved flags): poisoned with NaN there, the next steps of a simulation on the ground give the
+    same positions, velocities and stats, bit for bit, as the same simulation not poisoned; the ones that must
+    be zero after a rebuild (the contact arrays) are. (The coarse space's modes are carried over a cut with its
+    factor, not written again: test_a_followed_coarse_space_keeps_its_factor_until_its_refresh.)"""
     from warpblob.sim._solver import _WRITTEN
 
     def made():
@@ -190,7 +191,6 @@ def test_the_rows_a_rebuild_keeps_are_written_before_they_are_read():
     assert poisoned._solver.coarse.followed
     victims = [getattr(poisoned._solver, name) for name in _WRITTEN if name != "ones"]
     victims += [poisoned._x[1], poisoned._v[1], poisoned._moved]
-    victims += [poisoned._solver.coarse.node_mode, poisoned._solver.coarse.reference]
     for arr in victims:
         arr.numpy()[:old] = np.nan
     for sim in (clean, poisoned):
@@ -201,6 +201,37 @@ def test_the_rows_a_rebuild_keeps_are_written_before_they_are_read():
     np.testing.assert_array_equal(poisoned.velocities, clean.velocities)
     assert poisoned.stats["cg_iterations_total"] == clean.stats["cg_iterations_total"]
     assert np.isfinite(clean.positions).all() and np.abs(clean.velocities).max() > 0
+
+
+def test_a_followed_coarse_space_keeps_its_factor_until_its_refresh(monkeypatch):
+    """A cut's rebuild keeps the factor of the coarse space it follows (CoarseSpace.carry_modes): each added
+    node takes its source's mode offset and reference filter, the next step refreshes nothing (where a new
+    solver's first step refreshed it: about a step's cost at 100K tets) and its CG still stops at its
+    tolerance, not at the iteration cap, and
+    its positions agree with those of the same step after a refresh to 1e-3 of the step's motion; the factor
+    is refreshed on the solver's schedule, within COARSE_EVERY steps."""
+    from warpblob.sim import _solver
+
+    sim, r = _cut_simulation()
+    c = sim._solver.coarse
+    assert c.followed and c.modes_kept
+    src = np.where(r.node_weights < 0.5, r.node_sources[:, 0], r.node_sources[:, 1])
+    for rows in (c.node_mode.numpy(), c.reference.numpy()):
+        np.testing.assert_array_equal(rows[r.new_nodes], rows[src])
+    twin, _ = _cut_simulation()
+    twin._solver.invalidate()  # (the step refreshes the factor, as every rebuild's first step did)
+    x0 = sim.positions
+    for run in (sim, twin):
+        run.step(1)
+        assert 0 < run.stats["cg_iterations"] < run.max_iterations  # (stopped by its tolerance, not the cap)
+    assert sim.stats["coarse_refreshes"] == 0 and twin.stats["coarse_refreshes"] == 1
+    motion = np.abs(twin.positions - x0).max()
+    assert motion > 0 and np.abs(sim.positions - twin.positions).max() <= 1e-3 * motion
+    refreshes = []
+    for _ in range(_solver.COARSE_EVERY):
+        sim.step(1)
+        refreshes.append(sim.stats["coarse_refreshes"])
+    assert refreshes[-1] >= 1, refreshes
 
 
 def _box_with_probe(cells, path=None):

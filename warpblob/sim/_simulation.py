@@ -393,13 +393,24 @@ class Simulation:
             "coarse_refresh_seconds": 0.0 if c is None else c.refresh_seconds,
         }
 
-    def _update_flags(self) -> None:
+    def _update_flags(self, keep_coarse: bool = False) -> None:
+        """Set the node flags and refresh the state. ``keep_coarse``: a rebuild whose solver carried its
+        coarse factor over (a cut's, :meth:`CoarseSpace.carry_modes`) keeps it where every old node keeps
+        its flag or leaves the system (inactive: no live tet holds it any more, as a scalpel's last crack
+        front once the next frame cut past it); otherwise the coarse matrix is rebuilt at the next step."""
         rigid_free = self._rigid_pieces()
         fixed = self._fixed_mask | self._rigid_fixed
         flags = np.where(fixed, k.FIXED, np.where(rigid_free, k.RIGID, np.where(self._mass > 0, k.FREE, k.INACTIVE)))
         set_rows(self._flags, 0, flags)
         self._solver.set_rigid(self._bodies)
-        self._solver.invalidate()
+        before = getattr(self, "_flags_host", None)
+        same = keep_coarse and before is not None and len(before) <= len(flags)
+        if same:
+            old = flags[: len(before)]
+            same = not np.any((old != before) & (old != k.INACTIVE))
+        if not same:
+            self._solver.invalidate()
+        self._flags_host = flags
         self._refresh()
 
     # -- rigid materials -------------------------------------------------------
@@ -1106,7 +1117,7 @@ class Simulation:
         self._fixed_mask = pad(mask, fnew)
         self._anchor_mask = pad(self._anchor_mask, np.zeros(grow, dtype=bool))
         try:
-            self._update_flags()  # (its _refresh takes the carried state)
+            self._update_flags(keep_coarse=True)  # (its _refresh takes the carried state)
         finally:
             self._carry = self._prior = None  # never to a later refresh, whose positions may differ
         self.stats["tet_count"], self.stats["node_count"] = self.tet_count, self.node_count

@@ -380,6 +380,12 @@ class ImplicitSolver:
                 self.coarse = CoarseSpace(e, self.coarse_axes, th, pieces)
         self.rigid = None
         self._coarse_key, self._coarse_age = None, 0
+        # a followed space keeps the factor it was refreshed with, and the refresh its schedule: a cut's rebuild
+        # does not make the next step refresh it (at 100K tets a refresh is about the cost of a step)
+        if (self.coarse is not None and self.coarse.followed and self.coarse.modes_kept
+                and getattr(previous, "_coarse_key", None) is not None):  # fmt: skip
+            self.coarse.carry_modes()
+            self._coarse_key, self._coarse_age = previous._coarse_key, previous._coarse_age
         if self.coarse is not None:
             # the start's correction also sets p = z; an iteration's adds its r.z to the new row
             self._start_coarse = [prepare(("start_coarse", i), *a) for i, a in
