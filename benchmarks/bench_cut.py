@@ -57,6 +57,13 @@ no gravity), stepped 6 times before
 the first frame: each rebuild then also follows the contact's k-ring
 spread, boundary layer and median edge over the cut (``Contact.bind``).
 
+Scalpel in a stepping simulation (``sim_step`` rows, up to 200K tets): the
+``sim`` frames with one simulation step after each cut (3 kPa, gravity,
+nothing held), as an interactive loop runs them: the median step, the
+median whole frame (cut, rebuild, step), and the number of frames whose step
+rebuilt the coarse factor (a cut's rebuild keeps it: only the solver's own
+schedule, every 10 steps, or a new aggregation refreshes it).
+
 Drill (``drill`` rows; issue 15): a bone plate ``box_tetmesh`` of
 [0, 4] x [0, 4] x [0, 0.6] (cm; about 10K, 66K, the thesis skull's size, and
 500K tets) and a trephine (``wb.tools.Drill``, radius 0.5 cm, N = 8, 16, 32
@@ -143,6 +150,9 @@ SIM_FRAMES = 9
 SIM_RUNS = 3
 
 
+#: the largest mesh of the ``sim_step`` rows (a step of a 1M-tet simulation takes seconds)
+SIM_STEP_MAX = 200_000
+
 #: the ``sim_contact`` rows' probe: radius (cm), where it presses the top face (x, y; away from the strip),
 #: from how far above to how deep (cm), over how long (s), its stiffness, and the steps before the first frame
 PROBE_RADIUS, PROBE_AT, PROBE_FROM, PROBE_DEPTH, PROBE_TIME, PROBE_STIFFNESS, PROBE_STEPS = (
@@ -164,13 +174,15 @@ def _with_probe(sim: wb.Simulation) -> int:
     return len(sim.contact_nodes())
 
 
-def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS, contact: bool = False) -> dict:
+def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS, contact: bool = False, simulate: bool = False) -> dict:
     """The scalpel's frames in a simulation of the mesh: per frame the strip it sweeps is cut
     (``collect=False``) and the simulation follows the cut (``apply_cut``), frame after frame on one
     simulation; medians over the frames after the first (ms), of the fastest of ``runs`` simulations (by
     the median frame; every run's median frame is kept too). ``contact``: a probe presses the box too
     (:func:`_with_probe`), so each rebuild also follows the contact's spread and boundary layer over the cut
-    (the ``sim_contact`` rows)."""
+    (the ``sim_contact`` rows). ``simulate``: each frame also steps the simulation once after its cut (the
+    ``sim_step`` rows: ``sim_step_ms_median`` that step, ``frame_ms_median`` cut, rebuild and step,
+    ``refresh_frames`` the frames whose step refreshed the coarse factor)."""
     rows = []
     for _ in range(runs):
         s = TetStructure.from_tetmesh(mesh)
@@ -183,7 +195,7 @@ def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS, contact: bool = False
             pressed = _with_probe(sim)
         else:
             sim = wb.Simulation(s, young=3e3, poisson=0.45, density=1000.0)
-        cut_ms, fem_ms = [], []
+        cut_ms, fem_ms, sim_ms, refreshed = [], [], [], 0
         for frame in range(SIM_FRAMES):
             sweep = stroke_step(frame)
             t0 = time.perf_counter()
@@ -191,17 +203,27 @@ def run_sim_stroke(mesh: wb.TetMesh, runs: int = SIM_RUNS, contact: bool = False
             t1 = time.perf_counter()
             apply_cut(sim, result)
             t2 = time.perf_counter()
+            if simulate:
+                sim.step()
+            t3 = time.perf_counter()
             if frame:
                 cut_ms.append(1e3 * (t1 - t0))
                 fem_ms.append(1e3 * (t2 - t1))
+                sim_ms.append(1e3 * (t3 - t2))
+                refreshed += simulate and sim.stats["coarse_refreshes"] > 0
         total = np.add(cut_ms, fem_ms)
-        rows.append({"case": "sim_contact" if contact else "sim", "tets": mesh.tet_count, "frames": SIM_FRAMES - 1,
+        case = "sim_contact" if contact else "sim_step" if simulate else "sim"
+        rows.append({"case": case, "tets": mesh.tet_count, "frames": SIM_FRAMES - 1,
                      "cut_ms_median": float(np.median(cut_ms)), "fem_ms_median": float(np.median(fem_ms)),
                      "step_ms_median": float(np.median(total)), "step_ms_max": float(total.max()),
                      "tets_after": sim.tet_count,
-                     **({"contact_nodes": pressed} if contact else {})})  # fmt: skip
-    best = min(rows, key=lambda row: row["step_ms_median"])
-    return {**best, "runs": runs, "runs_step_ms_median": [row["step_ms_median"] for row in rows]}
+                     **({"contact_nodes": pressed} if contact else {}),
+                     **({"sim_step_ms_median": float(np.median(sim_ms)),
+                         "frame_ms_median": float(np.median(np.add(total, sim_ms))),
+                         "refresh_frames": int(refreshed)} if simulate else {})})  # fmt: skip
+    key = "frame_ms_median" if simulate else "step_ms_median"
+    best = min(rows, key=lambda row: row[key])
+    return {**best, "runs": runs, f"runs_{key}": [row[key] for row in rows]}
 
 
 def run_warpblob(mesh: wb.TetMesh, sweep: SweepSurface, repeat: int) -> dict:
@@ -375,6 +397,8 @@ def main(argv=None):
     print(table(rows, cols))
     sims = [run_sim_stroke(box(int(size)), contact=contact) for contact in (False, True)
             for size in args.sizes.split(",") if size]  # fmt: skip
+    stepped = [run_sim_stroke(box(int(size)), simulate=True) for size in args.sizes.split(",")
+               if size and int(size) <= SIM_STEP_MAX]  # fmt: skip
     print(table(sims, [("case", "case", "s"), ("tets", "tets", ",d"), ("frames", "frames", "d"),
                        ("cut_ms_median", "cut ms", ".1f"), ("fem_ms_median", "fem ms", ".1f"),
                        ("step_ms_median", "cut + fem ms", ".1f"), ("step_ms_max", "max", ".1f")]))  # fmt: skip
@@ -383,6 +407,13 @@ def main(argv=None):
           "frame in the JSON); sim_contact: the same with a probe pressing the box's top (each rebuild also "
           "follows the contact over the cut)")  # fmt: skip
     rows += sims
+    if stepped:
+        print(table(stepped, [("case", "case", "s"), ("tets", "tets", ",d"), ("cut_ms_median", "cut ms", ".1f"),
+                              ("fem_ms_median", "fem ms", ".1f"), ("sim_step_ms_median", "step ms", ".1f"),
+                              ("frame_ms_median", "frame ms", ".1f"), ("refresh_frames", "refreshed", "d")]))
+        print(f"sim_step: the sim frames with a simulation step after each cut (up to {SIM_STEP_MAX:,} tets); "
+              "refreshed: frames whose step rebuilt the coarse factor")  # fmt: skip
+    rows += stepped
     drills = [run_drill(int(size), int(n)) for size in args.drill_sizes.split(",") if size
               for n in args.segments.split(",")]  # fmt: skip
     if args.skull:
