@@ -359,6 +359,45 @@ def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
     assert e.node_count > len(box.nodes)
 
 
+def test_a_contact_keeps_its_tet_tree_over_cuts_and_locates_as_a_new_one():
+    """Over cuts the contact keeps the tree it locates points in (its main BVH refit, the slots of tets that
+    left the boundary layer emptied, the tets that joined in a second small tree) instead of building one over
+    the layer anew: points all over the box and round it land in the same tets with the same barycentric
+    coordinates and rest points, bit for bit, as with one tree built anew over the layer."""
+    _, s, sim = _box_with_probe((10, 5, 5))
+    contact = sim._contact
+    sim.step(4)  # (the probe touches: the contact has built its tree)
+    assert contact._tet_bvh is not None
+    rng = np.random.default_rng(11)
+    points = rng.uniform((-0.05, -0.05, -0.05), (1.05, 0.55, 0.55), (4000, 3)).astype(np.float32)
+    dev = contact.device
+    n = len(points)
+    kept = 0
+    for k in range(3):
+        a = np.array([[0.1 + 0.25 * k, 0.05, 0.7], [0.15 + 0.25 * k, 0.25, 0.7]])
+        s.set_positions(sim.positions)
+        tree = contact._tet_bvh
+        sim.apply_cut(cut(s, SweepSurface.from_blade(a, a - (0, 0, 0.5)), collect=False))
+        sim.step(1)
+        kept += contact._tet_bvh is tree and len(contact._extra) > 0 and bool((contact._slots < 0).any())
+        x = sim._x[sim._cur]
+        found = []
+        for located in (contact, copy.copy(contact)):
+            if located is not contact:  # (one tree over the layer, as a bind anew makes it, on a copy)
+                located._place_layer(contact._layer.numpy(), contact._layer_mask, local=False)
+                located._refit(x)
+                assert len(located._extra) == 0 and (located._slots >= 0).all()
+            out = [wp.empty(n, dtype=t, device=dev) for t in (wp.vec3, wp.vec3, wp.int32, wp.vec4)]
+            located._locate(x, wp.zeros(n, dtype=wp.int32, device=dev), wp.array(points, dtype=wp.vec3, device=dev),
+                            wp.array(np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32), dtype=wp.transform, device=dev),
+                            wp.zeros(1, dtype=wp.int32, device=dev), *out)  # fmt: skip
+            found.append([o.numpy() for o in out])
+        for a_, b_ in zip(*found):
+            np.testing.assert_array_equal(a_, b_)
+        assert (found[0][2] >= 0).sum() > n // 10  # (points inside the layer's tets, and round them)
+    assert kept == 3
+
+
 def test_element_pass_after_a_cut_is_the_full_pass():
     """After a cut the element pass is recomputed for the changed tets only, the others' carried over: every
     array equals a full pass at the same positions, bit for bit."""

@@ -109,9 +109,38 @@ def node_bounds_kernel(
 
 
 @wp.kernel(enable_backward=False)
-def locate_points_kernel(
-    tet_bvh: wp.uint64,
+def cell_bounds_kernel(
+    x: wp.array(dtype=wp.vec3),
+    tets: wp.array(dtype=wp.vec4i),
     cells: wp.array(dtype=wp.int32),
+    first: int,
+    offset: int,
+    lowers: wp.array(dtype=wp.vec3),
+    uppers: wp.array(dtype=wp.vec3),
+):
+    """Box of the tet ``cells[first + i]`` at the positions ``x``; an empty slot (-1) gets an empty box
+    (lower above upper), which a refit's unions ignore and no query meets."""
+    i = wp.tid() + offset
+    t = cells[first + i]
+    if t < 0:
+        lowers[i] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+        uppers[i] = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
+        return
+    tet = tets[t]
+    lo = x[tet[0]]
+    hi = x[tet[0]]
+    for a in range(1, 4):
+        lo = wp.min(lo, x[tet[a]])
+        hi = wp.max(hi, x[tet[a]])
+    lowers[i] = lo
+    uppers[i] = hi
+
+
+@wp.kernel(enable_backward=False)
+def locate_points_kernel(
+    trees: wp.array(dtype=wp.uint64),
+    cells: wp.array(dtype=wp.int32),
+    split: int,
     local: wp.array(dtype=wp.vec3),
     point_tool: wp.array(dtype=wp.int32),
     poses: wp.array(dtype=wp.transform),
@@ -129,8 +158,9 @@ def locate_points_kernel(
 ):
     """Each point placed by its tool's pose, then located; ``query`` is where the field is evaluated.
 
-    The BVH's items are the tets ``cells`` (the boundary layer during
-    contact). Nearest mode leaves ``point_cell`` to :func:`nearest_nodes_kernel`
+    The items of the two BVHs ``trees`` (an id 0: none) are the tets
+    ``cells`` (the boundary layer during contact: the first tree's from
+    ``cells[0]``, the second's from ``cells[split]``; -1 an empty slot). Nearest mode leaves ``point_cell`` to :func:`nearest_nodes_kernel`
     (after the field: only penetrating samples need a node). Field mode:
     the deformed tet holding the point (the most interior one
     when it lies on shared faces, ties to the smaller index, so the result
@@ -155,25 +185,35 @@ def locate_points_kernel(
     best = int(-1)
     best_in = float(-1.0e30)
     best_b = wp.vec3()
-    q = wp.bvh_query_aabb(tet_bvh, p, p)
     item = int(0)
-    while wp.bvh_query_next(q, item):
-        t = cells[item]
-        tet = tets[t]
-        Ds = shape_matrix(x, tet)
-        if wp.determinant(Ds) <= _FLAT * 6.0 * volume[t]:
+    for tree in range(2):
+        if trees[tree] == wp.uint64(0):
             continue
-        b = wp.inverse(Ds) * (p - x[tet[0]])
-        inside = wp.min(wp.min(1.0 - b[0] - b[1] - b[2], b[0]), wp.min(b[1], b[2]))
-        if inside >= _INSIDE and (inside > best_in or (inside == best_in and t < best)):
-            best = t
-            best_in = inside
-            best_b = b
-    if best < 0 and margin > 0.0:
-        best_d = margin
-        q = wp.bvh_query_aabb(tet_bvh, p - wp.vec3(margin, margin, margin), p + wp.vec3(margin, margin, margin))
+        q = wp.bvh_query_aabb(trees[tree], p, p)
         while wp.bvh_query_next(q, item):
-            t = cells[item]
+            t = cells[tree * split + item]
+            if t < 0:
+                continue
+            tet = tets[t]
+            Ds = shape_matrix(x, tet)
+            if wp.determinant(Ds) <= _FLAT * 6.0 * volume[t]:
+                continue
+            b = wp.inverse(Ds) * (p - x[tet[0]])
+            inside = wp.min(wp.min(1.0 - b[0] - b[1] - b[2], b[0]), wp.min(b[1], b[2]))
+            if inside >= _INSIDE and (inside > best_in or (inside == best_in and t < best)):
+                best = t
+                best_in = inside
+                best_b = b
+    held = best >= 0  # (a tet holds the point: no nearest tet sought)
+    best_d = margin
+    for tree in range(2):
+        if held or margin <= 0.0 or trees[tree] == wp.uint64(0):
+            continue
+        q = wp.bvh_query_aabb(trees[tree], p - wp.vec3(margin, margin, margin), p + wp.vec3(margin, margin, margin))
+        while wp.bvh_query_next(q, item):
+            t = cells[tree * split + item]
+            if t < 0:
+                continue
             tet = tets[t]
             Ds = shape_matrix(x, tet)
             if wp.determinant(Ds) <= _FLAT * 6.0 * volume[t]:
