@@ -21,7 +21,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..tree import ISO_DISTANCE, ISO_VALUE
-from ._kernels import polar_rotation, shape_matrix, triangle_distance
+from ._kernels import polar_rotation, shape_matrix, tet_box, triangle_distance
 
 #: contact modes: the field carried by the deformation, the thesis' nearest node in the rest field
 FIELD = 0
@@ -126,12 +126,7 @@ def cell_bounds_kernel(
         lowers[i] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
         uppers[i] = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
         return
-    tet = tets[t]
-    lo = x[tet[0]]
-    hi = x[tet[0]]
-    for a in range(1, 4):
-        lo = wp.min(lo, x[tet[a]])
-        hi = wp.max(hi, x[tet[a]])
+    lo, hi = tet_box(x, tets[t])
     lowers[i] = lo
     uppers[i] = hi
 

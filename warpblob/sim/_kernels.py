@@ -829,6 +829,17 @@ def advance_nodes_kernel(
     moved[i] = lift
 
 
+@wp.func
+def tet_box(x: wp.array(dtype=wp.vec3), tet: wp.vec4i):
+    """The box of tet ``tet`` at the positions ``x``: ``(lower, upper)``."""
+    lo = x[tet[0]]
+    hi = x[tet[0]]
+    for a in range(1, 4):
+        lo = wp.min(lo, x[tet[a]])
+        hi = wp.max(hi, x[tet[a]])
+    return lo, hi
+
+
 @wp.kernel(enable_backward=False)
 def tet_bounds_kernel(
     rest: wp.array(dtype=wp.vec3),
@@ -844,12 +855,7 @@ def tet_bounds_kernel(
         lowers[t] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
         uppers[t] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
         return
-    tet = tets[t]
-    lo = rest[tet[0]]
-    hi = rest[tet[0]]
-    for a in range(1, 4):
-        lo = wp.min(lo, rest[tet[a]])
-        hi = wp.max(hi, rest[tet[a]])
+    lo, hi = tet_box(rest, tets[t])
     lowers[t] = lo
     uppers[t] = hi
 
