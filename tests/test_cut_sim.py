@@ -349,7 +349,7 @@ def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
         near = np.zeros(e.node_count, dtype=bool)
         near[TetMesh(e.rest_host, t).surface_faces().ravel()] = True
         np.testing.assert_array_equal(contact._near, near)
-        np.testing.assert_array_equal(contact._layer.numpy(), np.flatnonzero(live)[near[t].any(axis=1)])
+        np.testing.assert_array_equal(contact._layer, np.flatnonzero(live)[near[t].any(axis=1)])
         edges = e.rest_host[t[:, [1, 2, 3, 2, 3, 3]]] - e.rest_host[t[:, [0, 0, 0, 1, 1, 2]]]
         assert contact.edge == float(np.median(np.linalg.norm(edges, axis=2)))  # (the live tets' median edge)
         # (the lengths it keeps sorted to take it: a regular box's median hardly moves with a few of them)
@@ -384,7 +384,7 @@ def test_a_contact_keeps_its_tet_tree_over_cuts_and_locates_as_a_new_one():
         found = []
         for located in (contact, copy.copy(contact)):
             if located is not contact:  # (one tree over the layer, as a bind anew makes it, on a copy)
-                located._place_layer(contact._layer.numpy(), contact._layer_mask, local=False)
+                located._place_layer(contact._layer, contact._layer_mask, local=False)
                 located._refit(x)
                 assert len(located._extra) == 0 and (located._slots >= 0).all()
             out = [wp.empty(n, dtype=t, device=dev) for t in (wp.vec3, wp.vec3, wp.int32, wp.vec4)]

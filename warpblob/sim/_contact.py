@@ -536,14 +536,8 @@ class Contact:
         self.edge = float(np.mean(ordered[half - 1 + len(ordered) % 2 : half + 1]))
         self.band = BAND * self.edge
         layer = np.flatnonzero(mask).astype(np.int32)
-        self._layer = wp.array(layer, dtype=wp.int32, device=self.device)
-        self.layer_count = len(layer)
+        self._layer, self.layer_count = layer, len(layer)  # (ascending, on the host)
         self._place_layer(layer, mask, local)
-        layer_nodes = np.zeros(e.node_count, dtype=bool)
-        layer_nodes[e.tets_host[layer].ravel()] = True
-        # the nearest-node search sees the layer's nodes only (the others get boxes far away)
-        self._layer_mass = wp.array(np.where(layer_nodes, e.mass.numpy(), 0.0).astype(np.float32), dtype=float,
-                                    device=self.device)  # fmt: skip
         # the k-ring spreads, made on first use; after a local edit followed from the ones before it
         rings = getattr(self, "_rings", {})
         self._rings_before = rings if local else {}
@@ -718,35 +712,43 @@ class Contact:
         if "field" in modes:
             # the main tree over its slots, the second over the tets that joined since (:meth:`_place_layer`)
             n0, n1 = len(self._slots), len(self._extra)
-            built = False
-            for part, size, first in (("_tet", n0, 0), ("_extra", n1, n0)):
-                tree = getattr(self, f"{part}_bvh")
-                if size == 0:
-                    continue
-                if tree is None:
-                    setattr(self, f"{part}_lowers", wp.empty(size, dtype=wp.vec3, device=dev))
-                    setattr(self, f"{part}_uppers", wp.empty(size, dtype=wp.vec3, device=dev))
-                lowers, uppers = getattr(self, f"{part}_lowers"), getattr(self, f"{part}_uppers")
-                split_launch(ck.cell_bounds_kernel, size, [x, e.tets, self._cells, first], [lowers, uppers], dev, th,
-                             NODE_GRAIN)  # fmt: skip
-                if tree is None:
-                    setattr(self, f"{part}_bvh", wp.Bvh(lowers, uppers))
-                    built = True
-                else:
-                    tree.refit()
-            if built or self._trees is None:
+            main, extra = self._tet_bvh, self._extra_bvh
+            if n0:
+                self._tet_bvh, self._tet_box = self._tree(main, getattr(self, "_tet_box", None), x, 0, n0)
+            if n1:
+                self._extra_bvh, self._extra_box = self._tree(extra, getattr(self, "_extra_box", None), x, n0, n1)
+            if self._trees is None or self._tet_bvh is not main or self._extra_bvh is not extra:
                 ids = [t.id if t is not None else 0 for t in (self._tet_bvh, self._extra_bvh)]
                 self._trees = wp.array(np.array(ids, dtype=np.uint64), dtype=wp.uint64, device=dev)
         if "nearest" in modes:
             if self._node_bvh is None:
                 self._node_lowers = wp.empty(e.node_count, dtype=wp.vec3, device=dev)
                 self._node_uppers = wp.empty(e.node_count, dtype=wp.vec3, device=dev)
+                # the nearest-node search sees the layer's nodes only (the others get boxes far away)
+                layer_nodes = np.zeros(e.node_count, dtype=bool)
+                layer_nodes[e.tets_host[self._layer].ravel()] = True
+                self._layer_mass = wp.array(np.where(layer_nodes, e.mass.numpy(), 0.0).astype(np.float32),
+                                            dtype=float, device=dev)  # fmt: skip
             split_launch(ck.node_bounds_kernel, e.node_count, [x, self._layer_mass],
                          [self._node_lowers, self._node_uppers], dev, th, NODE_GRAIN)  # fmt: skip
             if self._node_bvh is None:
                 self._node_bvh = wp.Bvh(self._node_lowers, self._node_uppers)
             else:
                 self._node_bvh.refit()
+
+    def _tree(self, tree, box, x: wp.array, first: int, size: int) -> tuple:
+        """The boxes of the tets ``_cells[first:first + size]`` at ``x`` and the tree over them: ``tree``
+        refit where there is one (``box``: its (lowers, uppers)), else a new one over new boxes; returns
+        ``(tree, box)``."""
+        dev = self.device
+        if tree is None:
+            box = (wp.empty(size, dtype=wp.vec3, device=dev), wp.empty(size, dtype=wp.vec3, device=dev))
+        split_launch(ck.cell_bounds_kernel, size, [x, self.elements.tets, self._cells, first], list(box), dev,
+                     self.threads, NODE_GRAIN)  # fmt: skip
+        if tree is None:
+            return wp.Bvh(*box), box
+        tree.refit()
+        return tree, box
 
     def _locate(self, x: wp.array, point_tool, local, poses, modes, world, query, cell, bary) -> None:
         e = self.elements
