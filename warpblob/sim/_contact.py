@@ -238,7 +238,7 @@ class _Spread:
     Made packed by :func:`_ring_spread`, followed in place by :func:`ring_spread_after`.
     """
 
-    __slots__ = ("ranges", "room", "nodes", "weights", "rings", "total", "tail")
+    __slots__ = ("nodes", "ranges", "rings", "room", "tail", "total", "weights")
 
     def __init__(self, offsets: np.ndarray, nodes: np.ndarray, weights: np.ndarray, total: np.ndarray,
                  rings: np.ndarray):  # fmt: skip
