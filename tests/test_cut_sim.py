@@ -279,7 +279,8 @@ def test_the_ring_spread_follows_cuts_bit_for_bit(k):
     """The contact's k-ring spread followed over a cut's rebuild (ring_spread_after: the rows within 2 k of the
     changed tets' corners found again, those within 2 k weighed again, the rest copied) equals the spread made
     anew, offsets, nodes, weights, sums and rings bit for bit, over five random strokes (new nodes, dead tets,
-    pieces coming apart), from the packed incidence and from its lists as the elements keep them."""
+    pieces coming apart), from the packed incidence and from its lists as the elements keep them, and with
+    too little room for the rows searched again (written a second time at their places)."""
     from warpblob.sim._contact import _ring_spread, ring_spread_after
 
     box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (10, 5, 5))
@@ -295,10 +296,11 @@ def test_the_ring_spread_follows_cuts_bit_for_bit(k):
         sim.apply_cut(r)
         live = e.alive_host & (e.volume.numpy() > 0)
         fresh = _ring_spread(e.tets_host, live, e.node_count, k)
-        for incidence in (e.incidence(), e.incidence_lists()):  # (packed, and the lists where they are kept)
-            # (a follow edits the spread in place: each from its own copy)
-            followed = ring_spread_after(copy.deepcopy(before), e.tets_host, live, e.node_count, k, e.touched_nodes,
-                                         incidence)  # fmt: skip
+        # (packed, and the lists where they are kept; with the rows' room too small for them, written again)
+        for incidence, hint in ((e.incidence(), None), (e.incidence_lists(), None), (e.incidence_lists(), 2)):
+            start = copy.deepcopy(before)  # (a follow edits the spread in place: each from its own copy)
+            start.row_hint = hint or start.row_hint
+            followed = ring_spread_after(start, e.tets_host, live, e.node_count, k, e.touched_nodes, incidence)
             assert len(followed.packed()) == len(fresh.packed()) == 5
             for a_, b_ in zip(fresh.packed(), followed.packed()):
                 assert a_.dtype == b_.dtype

@@ -93,7 +93,7 @@ import warp as wp
 
 from .._errors import SimulationError, ToolError
 from .._linearize import linearize
-from .._parallel import launch
+from .._parallel import launch, thread_count
 from .._stages import device_array, host_array, rows_any
 from ..field import evaluate
 from ..mesh import TetMesh
@@ -238,7 +238,7 @@ class _Spread:
     Made packed by :func:`_ring_spread`, followed in place by :func:`ring_spread_after`.
     """
 
-    __slots__ = ("nodes", "ranges", "rings", "room", "tail", "total", "weights")
+    __slots__ = ("nodes", "ranges", "rings", "room", "row_hint", "stamps", "tag", "tail", "total", "weights")
 
     def __init__(self, offsets: np.ndarray, nodes: np.ndarray, weights: np.ndarray, total: np.ndarray,
                  rings: np.ndarray):  # fmt: skip
@@ -246,6 +246,9 @@ class _Spread:
         self.room = np.diff(offsets).astype(np.int32)
         self.nodes, self.weights, self.rings, self.total = nodes, weights, rings, total
         self.tail = len(nodes)
+        # (the stamps of :func:`_rings_near`, its last tag and the room it gives a row)
+        self.stamps, self.tag = None, 0
+        self.row_hint = int(self.room.max()) + int(self.room.max()) // 4 if len(self.room) else 16
 
     def packed(self) -> tuple:
         """The spread as a packed CSR: ``(offsets (N + 1,) int32, nodes, weights, total, rings)``."""
@@ -343,9 +346,8 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
         within[level] = True
         levels.append(level)
     redo = np.sort(np.concatenate(levels[: k + 1]))
-    local = tets[_tets_at(incidence, np.concatenate(levels[: 2 * k]), alive)].astype(np.int64)
-    keys, rings = _rings(_adjacency(local, N), redo, N, k)
-    rows, cols = keys // N, keys % N
+    count, cols, rings = _rings_near(spread, incidence, tets, alive, redo, N, k, threads)
+    rows = np.repeat(redo, count)
     w = (k + 1 - rings) / (k + 1)
     # the per-row arrays grown to the added nodes (their rows are redone: every added node is touched)
     if N > n_old:
@@ -356,7 +358,6 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
     total[redo] = np.bincount(rows, weights=w, minlength=N)[redo]
     # the redone rows (every one holds its own node: rows ascend through redo) in their slots where they fit,
     # else at the tail with half as much room again
-    count = np.bincount(rows, minlength=N)[redo].astype(np.int64)
     moved = spread.room[redo] < count
     size = count[moved] + count[moved] // 2 + 4
     start = spread.ranges[redo, 0].astype(np.int64)
@@ -387,6 +388,60 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
 
 #: rows of a spread per launch piece when they are weighed again (a row is some tens of entries)
 _ROW_GRAIN = 1024
+
+
+def _rings_near(spread: _Spread, incidence: tuple, tets: np.ndarray, alive: np.ndarray, sources: np.ndarray,
+                N: int, k: int, threads=None) -> tuple:  # fmt: skip
+    """The rows of :func:`_rings` for ``sources`` (ascending) as ``(count (R,) int64, nodes (sum,) int32,
+    rings (sum,) uint8)`` (each row's nodes ascending), by a search per source over the live tets round
+    each node (``incidence`` as :func:`_tets_at` takes it) in :func:`~warpblob.sim._contact_kernels.
+    ring_rows_kernel`. Each CPU thread searches its own share of the rows with its own node and tet stamps
+    (kept in ``spread`` between calls: a row's tag is new, so nothing is cleared) and writes them one after
+    the other in room for ``spread.row_hint`` entries a row (the largest row met so far, and a quarter);
+    where that was too little, the rows are written again at their places, the sizes known."""
+    R = len(sources)
+    if R == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint8)
+    first_in, corners = incidence
+    if first_in.ndim == 2:
+        ranges = np.ascontiguousarray(first_in, dtype=np.int32)
+    else:
+        ranges = np.ascontiguousarray(np.stack([first_in[:-1], first_in[1:]], axis=1), dtype=np.int32)
+    tets = np.ascontiguousarray(tets, dtype=np.int32)
+    T = len(tets)
+    P = max(1, min(thread_count() if threads is None else int(threads), R))
+    stamps = spread.stamps
+    if (stamps is None or stamps[0].shape[0] < P or stamps[0].shape[1] < N or stamps[1].shape[1] < T
+            or spread.tag + 2 * R >= np.iinfo(np.int32).max):  # fmt: skip
+        stamps = spread.stamps = (np.zeros((P, N + N // 8), dtype=np.int32), np.zeros((P, T + T // 8), np.int32))
+        spread.tag = 0
+    per = -(-R // P)
+    room = per * spread.row_hint
+    found, found_ring = np.empty((P, N), dtype=np.int32), np.empty((P, N), dtype=np.uint8)
+    count = np.empty(R, dtype=np.int32)
+    nodes, rings = np.empty(P * room, np.int32), np.empty(P * room, np.uint8)
+    args = [host_array(np.ascontiguousarray(sources, dtype=np.int32), wp.int32), host_array(ranges, wp.vec2i),
+            host_array(np.ascontiguousarray(corners, dtype=np.int32), wp.int32), host_array(tets, wp.vec4i),
+            host_array(np.ascontiguousarray(alive).view(np.uint8), wp.uint8), int(k), per]  # fmt: skip
+    scratch = [wp.array(stamps[0], dtype=wp.int32, copy=False), wp.array(stamps[1], dtype=wp.int32, copy=False),
+               wp.array(found, dtype=wp.int32, copy=False), wp.array(found_ring, dtype=wp.uint8, copy=False),
+               host_array(count, wp.int32)]  # fmt: skip
+    launch(ck.ring_rows_kernel, P, [*args, spread.tag, host_array(np.zeros(0, np.int32), wp.int32), room],
+           [*scratch, host_array(nodes, wp.int32), host_array(rings, wp.uint8)], "cpu", threads, min_chunk=1)
+    spread.tag += R
+    size = np.abs(count)
+    spread.row_hint = max(spread.row_hint, int(size.max()) + int(size.max()) // 4)
+    if count.min() > 0:  # (every row in its piece's room: the pieces' rows one after the other)
+        used = np.add.reduceat(size, np.arange(0, R, per))
+        keep = np.concatenate([np.arange(p * room, p * room + u) for p, u in enumerate(used.tolist())])
+        return size.astype(np.int64), nodes[keep], rings[keep]
+    first = np.zeros(R, dtype=np.int32)
+    np.cumsum(size[:-1], out=first[1:])
+    nodes, rings = np.empty(int(size.sum()), np.int32), np.empty(int(size.sum()), np.uint8)
+    launch(ck.ring_rows_kernel, P, [*args, spread.tag, host_array(first, wp.int32), 0],
+           [*scratch, host_array(nodes, wp.int32), host_array(rings, wp.uint8)], "cpu", threads, min_chunk=1)
+    spread.tag += R
+    return size.astype(np.int64), nodes, rings
 
 
 @dataclass(frozen=True, eq=False)

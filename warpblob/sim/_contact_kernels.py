@@ -550,3 +550,91 @@ def reweigh_rows_kernel(
     for j in range(span[0], span[1]):
         w = wp.float64(k + 1 - int(rings[j])) / wp.float64(k + 1)
         weights[j] = wp.float32(w / total[nodes[j]])
+
+
+@wp.kernel(enable_backward=False)
+def ring_rows_kernel(
+    sources: wp.array(dtype=wp.int32),
+    ranges: wp.array(dtype=wp.vec2i),
+    corners: wp.array(dtype=wp.int32),
+    tets: wp.array(dtype=wp.vec4i),
+    live: wp.array(dtype=wp.uint8),
+    k: int,
+    per_piece: int,
+    tag_base: int,
+    first: wp.array(dtype=wp.int32),
+    room: int,
+    offset: int,
+    node_stamp: wp.array2d(dtype=wp.int32),
+    tet_stamp: wp.array2d(dtype=wp.int32),
+    found: wp.array2d(dtype=wp.int32),
+    found_ring: wp.array2d(dtype=wp.uint8),
+    count: wp.array(dtype=wp.int32),
+    nodes: wp.array(dtype=wp.int32),
+    rings: wp.array(dtype=wp.uint8),
+):
+    """The k-ring rows of sources ``[p * per_piece, (p + 1) * per_piece)`` for piece ``p`` (one thread, with
+    its own row of the stamps and of the scratch ``found``/``found_ring``), by a breadth-first search over
+    the live tets round each node (``ranges``/``corners``: the incidence lists, corner ``4 * tet + i``),
+    each tet's corners looked at once a row. Source ``i``'s nodes and tets get the tag ``tag_base + i + 1``
+    (the stamps are never cleared). Row ``i``'s size goes to ``count[i]``, and its nodes, ascending, with
+    their rings to ``nodes``/``rings`` from ``first[i]`` where ``first`` is given, else from where the
+    piece's earlier rows ended in its ``room`` entries from ``p * room`` (from the first row that does not
+    fit on, its size negated in ``count`` and the row not written: the rows are then written again from
+    ``first``).
+    (:func:`warpblob.sim._contact._rings_near`: the rows of :func:`~warpblob.sim._contact._rings`.)"""
+    p = wp.tid() + offset
+    lo = p * per_piece
+    hi = wp.min(lo + per_piece, sources.shape[0])
+    at = p * room
+    end = at + room
+    for i in range(lo, hi):
+        tag = tag_base + i + 1
+        s = sources[i]
+        found[p, 0] = s
+        found_ring[p, 0] = wp.uint8(0)
+        node_stamp[p, s] = tag
+        size = int(1)
+        level_start = int(0)
+        for ring in range(1, k + 1):
+            level_end = size
+            for f in range(level_start, level_end):
+                span = ranges[found[p, f]]
+                for c in range(span[0], span[1]):
+                    t = corners[c] // 4
+                    if live[t] != wp.uint8(0) and tet_stamp[p, t] != tag:
+                        tet_stamp[p, t] = tag
+                        tet = tets[t]
+                        for m in range(4):
+                            b = tet[m]
+                            if node_stamp[p, b] != tag:
+                                node_stamp[p, b] = tag
+                                found[p, size] = b
+                                found_ring[p, size] = wp.uint8(ring)
+                                size += 1
+            level_start = level_end
+        start = at
+        if first.shape[0] > 0:
+            start = first[i]
+        elif at + size > end:
+            at = end + 1  # (no row after this one is written in the room either)
+            count[i] = -size
+            continue
+        count[i] = size
+        at += size
+        # insertion sort by node (a row is some tens of nodes), then out
+        for j in range(1, size):
+            b = found[p, j]
+            r = found_ring[p, j]
+            m = j
+            while m > 0:
+                if found[p, m - 1] < b:
+                    break
+                found[p, m] = found[p, m - 1]
+                found_ring[p, m] = found_ring[p, m - 1]
+                m -= 1
+            found[p, m] = b
+            found_ring[p, m] = r
+        for j in range(size):
+            nodes[start + j] = found[p, j]
+            rings[start + j] = found_ring[p, j]
