@@ -229,3 +229,34 @@ def test_sorted_lengths_are_spliced_as_a_sort_anew_would_give_them():
         np.testing.assert_array_equal(_contact._sorted_after(ordered, gone, came, room), expected)
         np.testing.assert_array_equal(room[: len(expected)], expected)
     assert _contact._sorted_after(ordered, np.array([1e6], np.float32), came) is None
+
+
+def test_sorted_lengths_with_pending_changes_agree_with_numpy():
+    """The contact's live edge lengths as a sorted multiset with the changes of the last edits pending
+    (``_SortedLengths``: values out of its base, values in, a value out that an earlier edit put in, the
+    pending ones spliced in once they outgrow their share): after each of 60 random edits, with many equal
+    values, every order statistic (``kth``), the median (``np.median``'s, bit for bit) and the values sorted
+    are numpy's of the edited multiset; an edit taking out a value that is not there changes nothing."""
+    rng = np.random.default_rng(5)
+    for trial in range(6):
+        multiset = (rng.integers(0, 9 if trial % 2 else 400, 300).astype(np.float32) / 7).tolist()
+        kept = _contact._SortedLengths(np.sort(np.array(multiset, dtype=np.float32)))
+        spliced = 0
+        for _ in range(60):
+            have = np.array(multiset, dtype=np.float32)
+            out = rng.choice(len(have), int(rng.integers(0, 12)), replace=False)
+            came = (rng.integers(-1, 10 if trial % 2 else 410, int(rng.integers(0, 12))) / 7).astype(np.float32)
+            pending = len(kept.gone) + len(kept.came)
+            assert kept.edit(have[out], came)
+            spliced += len(kept.gone) + len(kept.came) < pending
+            multiset = np.concatenate([np.delete(have, out), came]).tolist()
+            expected = np.sort(np.array(multiset, dtype=np.float32))
+            assert len(kept) == len(expected)
+            assert [kept.kth(i) for i in range(len(expected))] == expected.tolist()
+            assert kept.median() == float(np.median(expected))
+            np.testing.assert_array_equal(kept.sorted(), expected)
+        assert spliced and len(kept.came) + len(kept.gone) < len(kept.base)
+        before = kept.sorted().copy()
+        missing = np.array([1e6], np.float32)
+        assert not kept.edit(missing, came)
+        np.testing.assert_array_equal(kept.sorted(), before)

@@ -206,6 +206,97 @@ def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray, out: 
     return np.concatenate(pieces, out=out[:size])
 
 
+class _SortedLengths:
+    """A sorted multiset of float32 values with the changes of the last edits pending: ``base`` (ascending)
+    less ``gone`` plus ``came`` (both ascending; ``gone`` is part of ``base``, ``came`` of the multiset), so
+    that an edit costs a merge of the pending values, not a pass over every value (they are spliced into
+    ``base`` by :func:`_sorted_after` once they outgrow 1/:data:`_PENDING` of it). Order statistics are
+    searches: the count at or below a value is ``base``'s less ``gone``'s plus ``came``'s."""
+
+    __slots__ = ("base", "came", "gone")
+
+    def __init__(self, ordered: np.ndarray):
+        self.base = ordered
+        self.gone = self.came = np.zeros(0, dtype=np.float32)
+
+    def __len__(self) -> int:
+        return len(self.base) - len(self.gone) + len(self.came)
+
+    def edit(self, gone: np.ndarray, came: np.ndarray) -> bool:
+        """Take the values ``gone`` out and put ``came`` in; False (nothing changed) where a value of
+        ``gone`` is not in the multiset (then make it anew)."""
+        gone = np.sort(np.asarray(gone, dtype=np.float32))
+        came = np.sort(np.asarray(came, dtype=np.float32))
+        pending = self.came
+        # a value taken out that a pending one put in: that one goes (each at its own slot among its equals)
+        if len(pending) and len(gone):
+            at = np.searchsorted(pending, gone) + (np.arange(len(gone)) - np.searchsorted(gone, gone))
+            hit = at < len(pending)
+            hit[hit] = pending[at[hit]] == gone[hit]
+            pending, gone = np.delete(pending, at[hit]), gone[~hit]
+        # the others out of ``base``: no value more often out than it is there
+        out = _merged(self.gone, gone)
+        if len(gone):
+            values = np.unique(gone)
+            n_out = np.searchsorted(out, values, side="right") - np.searchsorted(out, values)
+            n_base = np.searchsorted(self.base, values, side="right") - np.searchsorted(self.base, values)
+            if np.any(n_out > n_base):
+                return False
+        self.gone, self.came = out, _merged(pending, came)
+        if _PENDING * (len(self.gone) + len(self.came)) > len(self.base):
+            self.base = _sorted_after(self.base, self.gone, self.came)
+            self.gone = self.came = np.zeros(0, dtype=np.float32)
+        return True
+
+    def sorted(self) -> np.ndarray:
+        """Every value, ascending (a new array where changes are pending)."""
+        if not len(self.gone) and not len(self.came):
+            return self.base
+        return _sorted_after(self.base, self.gone, self.came)
+
+    def _at_most(self, value) -> int:
+        """How many values are at or below ``value``."""
+        return int(np.searchsorted(self.base, value, side="right") - np.searchsorted(self.gone, value, side="right")
+                   + np.searchsorted(self.came, value, side="right"))  # fmt: skip
+
+    def kth(self, k: int) -> np.float32:
+        """The ``k``-th smallest value (0-based): the least value with more than ``k`` at or below it, found
+        by bisection in ``base`` (up to place ``k`` plus the values gone: more than ``k`` lie at or below
+        that one) and in ``came``; a value of ``base`` that is all gone counts the same as the next one below
+        it that is there, so the lesser of the two finds is there."""
+        best = None
+        for values, hi in ((self.base, min(len(self.base), k + len(self.gone) + 1)), (self.came, len(self.came))):
+            lo, end = 0, hi
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if self._at_most(values[mid]) > k:
+                    hi = mid
+                else:
+                    lo = mid + 1
+            if lo < end and (best is None or values[lo] < best):
+                best = values[lo]
+        return best
+
+    def median(self) -> float:
+        """The median as ``np.median`` takes it: the mean of the middle one or two values (float32)."""
+        n = len(self)
+        middle = [self.kth(n // 2)] if n % 2 else [self.kth(n // 2 - 1), self.kth(n // 2)]
+        return float(np.mean(np.array(middle, dtype=np.float32)))
+
+
+#: pending changes of a :class:`_SortedLengths` are spliced into its base beyond 1/_PENDING of it
+_PENDING = 32
+
+
+def _merged(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Two ascending arrays as one, ascending (a copy of each, not a sort)."""
+    if not len(b):
+        return a
+    if not len(a):
+        return b
+    return np.insert(a, np.searchsorted(a, b, side="right"), b)
+
+
 def _unique(keys: np.ndarray) -> np.ndarray:
     """Sorted distinct ``keys`` by a sort (numpy's hashing ``np.unique`` is several times slower on these)."""
     keys = np.sort(keys)
@@ -537,11 +628,11 @@ class Contact:
         # (the face keys below take three node indices in an int64)
         self._incidence = e.incidence_lists() if local else None
         # the boundary layer (the tets with a node on the boundary) and every tet's edge lengths (T, 6)
-        # (the live tets' edge lengths are kept sorted: a local edit's median is then the sorted lengths
-        # spliced, not a selection over all of them again)
+        # (the live tets' edge lengths are kept as a sorted multiset with the changes of the last edits
+        # pending: a local edit's median is then a search, not a selection over all of them again)
         # (the lengths are kept in a base with room, rows of new tets appended in place)
-        ordered = None
         T = e.tet_count
+        sorted_lengths = None
         if local:
             near, mask, around = self._layer_after(live, e.touched_nodes, self._incidence)
             T0 = len(self._lengths)
@@ -550,28 +641,24 @@ class Contact:
                 grown[:T0] = self._lengths
                 self._lengths_base = grown
             lengths = self._lengths_base[:T]
-            # the rows of the tets round the touched nodes and the new ones, the old ones kept: the live
-            # tets whose rows changed give their old lengths back and their new ones in, the tets that died
-            # (rows left as they were) their lengths back, the new live tets theirs in
-            redo = np.union1d(around, np.arange(T0, T))
+            # the rows of the tets round the touched nodes, the changed ones and the new ones (no other tet
+            # changed or was born or died): the live tets whose rows changed give their old lengths back and
+            # their new ones in, the tets that died their old lengths back, the new live tets theirs in
+            changed = e.changed_tets
+            redo = np.union1d(np.union1d(around, changed[changed < T0]), np.arange(T0, T))
             stay = redo[redo < T0]
             before = lengths[stay]
             lengths[redo] = _edge_lengths(e.rest_host, e.tets_host[redo])
-            was = np.zeros(T, dtype=bool)
-            was[:T0] = self._live
-            both = was[stay] & live[stay]
+            was, now = self._live[stay], live[stay]
+            both = was & now
             differ = np.any(before[both] != lengths[stay[both]], axis=1)
-            gone = np.concatenate([lengths[was & ~live].ravel(), before[both][differ].ravel()])
-            came = np.concatenate([lengths[live & ~was].ravel(), lengths[stay[both][differ]].ravel()])
-            # (into the other of two bases with room: the one of the bind before holds ``_sorted_lengths``)
-            size = len(self._sorted_lengths) - len(gone) + len(came)
-            spare = self._sorted_spare
-            if spare is None or len(spare) < size:
-                spare = np.empty(size + size // 8, dtype=np.float32)
-            ordered = _sorted_after(self._sorted_lengths, gone, came, spare)
-            if ordered is not None:
-                self._sorted_spare = self._sorted_base
-                self._sorted_base = spare
+            new = redo[len(stay) :]
+            gone = np.concatenate([before[was & ~now].ravel(), before[both][differ].ravel()])
+            came = np.concatenate([lengths[stay[~was & now]].ravel(), lengths[stay[both][differ]].ravel(),
+                                   lengths[new[live[new]]].ravel()])  # fmt: skip
+            sorted_lengths = self._sorted_lengths
+            if not sorted_lengths.edit(gone, came):
+                sorted_lengths = None
         else:
             t = e.tets_host[live]
             near = np.zeros(e.node_count, dtype=bool)
@@ -581,14 +668,12 @@ class Contact:
             self._lengths_base = np.empty((T + T // 8 + 16, 6), dtype=np.float32)
             lengths = self._lengths_base[:T]
             lengths[:] = _edge_lengths(e.rest_host, e.tets_host)
-        if ordered is None:
-            ordered = np.sort(lengths[live], axis=None)
-            self._sorted_base, self._sorted_spare = ordered, None
+        if sorted_lengths is None:
+            sorted_lengths = _SortedLengths(np.sort(lengths[live], axis=None))
         self._near, self._layer_mask, self._lengths, self._live = near, mask, lengths, live
-        self._sorted_lengths = ordered
+        self._sorted_lengths = sorted_lengths
         # the median of the live tets' edges, as ``np.median`` takes it: the mean of the middle one or two
-        half = len(ordered) // 2
-        self.edge = float(np.mean(ordered[half - 1 + len(ordered) % 2 : half + 1]))
+        self.edge = sorted_lengths.median()
         self.band = BAND * self.edge
         layer = np.flatnonzero(mask).astype(np.int32)
         self._layer, self.layer_count = layer, len(layer)  # (ascending, on the host)

@@ -535,6 +535,8 @@ class Elements:
         self._bases["mass"], self.mass = room(base, N, float, dev)
         gather = [self.node_range, self.node_corners, self.volume, self.density]
         self.touched_nodes = None if touched is None or not old_n else touched.astype(np.int32)
+        # (the tets this rebuild changed, where it followed a local edit: as ``touched_nodes``, for the contact)
+        self.changed_tets = None if self.touched_nodes is None else ids.astype(np.int64)
         self.revision = getattr(self, "revision", -1) + 1
         if self.touched_nodes is None:
             # (a light kernel: pieces of 2^15 nodes, not the launcher's default, whose many small pieces cost
