@@ -693,6 +693,47 @@ def test_the_coarse_space_follows_an_edit_that_leaves_old_nodes_without_mass(dev
     assert np.abs(ref.coarse.numpy()).max() > 0
 
 
+def test_the_box_of_the_nodes_with_mass_follows_edits():
+    """The rest box of the nodes with mass (the scale of the solver's tolerances) kept over edits: five
+    random strokes, then a rebuild that kills the slab of tets at x = 0 (its nodes there lose their mass and
+    the box shrinks) and one that kills a tet inside (no node leaves the box's faces): after each it is the
+    box of the nodes with mass taken anew."""
+    box = box_tetmesh((0, 0, 0), (1.0, 0.5, 0.5), (10, 5, 5))
+    s = TetStructure.from_tetmesh(box)
+    sim = wb.Simulation(s, young=1e5, poisson=0.35, density=1000.0)
+    rng = np.random.default_rng(11)
+
+    def expected():
+        rest = sim.elements.rest_host[sim._mass > 0]
+        return rest.min(axis=0), rest.max(axis=0)
+
+    edits = 0
+    while edits < 5:
+        a = np.array([rng.uniform(0.05, 0.6), rng.uniform(0.05, 0.45), 0.7])
+        blade = np.stack([a, a + (rng.uniform(0.1, 0.4), rng.uniform(-0.1, 0.1), 0.0)])
+        r = cut(s, SweepSurface.from_blade(blade, blade - (0, 0, rng.uniform(0.2, 0.7))), collect=False)
+        sim.apply_cut(r)
+        if not r.tets_added:  # (a stroke that only touched nodes: nothing rebuilt)
+            continue
+        edits += 1
+        assert sim.elements.touched_nodes is not None  # (a local edit: the box followed)
+        for got, want in zip(sim._bounds, expected()):
+            np.testing.assert_array_equal(got, want)
+    e = sim.elements
+    centre = e.rest_host[e.tets_host].mean(axis=1)
+    live = e.alive_host.copy()
+    slab = np.flatnonzero(live & (centre[:, 0] < 0.1))
+    inner = np.flatnonzero(live & (np.abs(centre - (0.5, 0.25, 0.25)).max(axis=1) < 0.06))[:1]
+    for dead, shrinks in ((slab, True), (inner, False)):
+        before = [b.copy() for b in sim._bounds]
+        sim.rebuild(dead, alive=np.zeros(len(dead), dtype=bool))
+        assert sim.elements.touched_nodes is not None
+        for got, want in zip(sim._bounds, expected()):
+            np.testing.assert_array_equal(got, want)
+        assert (sim._bounds[0][0] > before[0][0]) == shrinks
+    assert sim._bounds[0][0] >= 0.1 - 1e-6
+
+
 @pytest.mark.parametrize("growth", [0.0, 1.0])
 def test_the_coarse_space_is_made_anew_once_the_nodes_grew(growth, monkeypatch):
     """The aggregates are carried over cuts only while the nodes have grown by at most FOLLOW_GROWTH since
