@@ -141,8 +141,20 @@ def test_a_very_stiff_contact_is_stable_at_sixty_hertz(block):
 
 
 def test_the_spread_follows_the_structure_rings_and_keeps_the_force(block):
+    """Every row of the k-ring spread (the kernel's search) is the node's rings by the structure's own
+    ``k_ring``, each entry with its ring, for k = 1, 2, 3; the weights go 3 : 2 : 1 by ring and lose nothing."""
+    from warpblob.sim._contact import _ring_spread
+
     structure = TetStructure.from_tetmesh(block)
-    offsets, nodes, weights = ring_spread(block.tets, np.ones(block.tet_count, bool), block.node_count, 2)
+    alive = np.ones(block.tet_count, bool)
+    for k in (1, 2, 3):
+        offsets, nodes, _, _, rings = _ring_spread(block.tets, alive, block.node_count, k).packed()
+        for node in range(0, block.node_count, 1 if k < 3 else 7):
+            row = slice(offsets[node], offsets[node + 1])
+            within = [np.union1d(structure.k_ring(node, r), [node]) for r in range(k + 1)]
+            assert np.array_equal(nodes[row], within[k])
+            np.testing.assert_array_equal(rings[row], [min(r for r in range(k + 1) if c in within[r]) for c in nodes[row]])
+    offsets, nodes, weights = ring_spread(block.tets, alive, block.node_count, 2)
     rows = np.repeat(np.arange(block.node_count), np.diff(offsets))
     for node in (0, 17, block.node_count // 2, block.node_count - 1):
         assert np.array_equal(nodes[offsets[node] : offsets[node + 1]], np.union1d(structure.k_ring(node, 2), [node]))

@@ -299,7 +299,7 @@ def test_the_ring_spread_follows_cuts_bit_for_bit(k):
         # (packed, and the lists where they are kept; with the rows' room too small for them, written again)
         for incidence, hint in ((e.incidence(), None), (e.incidence_lists(), None), (e.incidence_lists(), 2)):
             start = copy.deepcopy(before)  # (a follow edits the spread in place: each from its own copy)
-            start.row_hint = hint or start.row_hint
+            start.search.row_hint = hint or start.search.row_hint
             followed = ring_spread_after(start, e.tets_host, live, e.node_count, k, e.touched_nodes, incidence)
             assert len(followed.packed()) == len(fresh.packed()) == 5
             for a_, b_ in zip(fresh.packed(), followed.packed()):

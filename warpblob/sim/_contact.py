@@ -326,9 +326,10 @@ def ring_spread(tets: np.ndarray, alive: np.ndarray, node_count: int, k: int):
     ``W[j, c] = w(r) / Z_c``: ``w(r) = (k + 1 - r) / (k + 1)`` for ``r`` the
     ring of ``j`` around ``c`` and ``Z_c = sum_j w(r(j, c))``, so each
     node's force is spread without loss. Rings are symmetric, so row ``c``
-    also lists the nodes ``c`` spreads to. Breadth-first search over all
-    nodes at once (vectorized numpy: a set-up cost, paid again only when the
-    topology changes; :func:`ring_spread_after` follows a local edit).
+    also lists the nodes ``c`` spreads to. A breadth-first search from each
+    node over the live tets round it, in a kernel (:func:`_rings_near`: a
+    set-up cost, paid again only when the topology changes;
+    :func:`ring_spread_after` follows a local edit).
     """
     return _ring_spread(tets, alive, node_count, k).packed()[:3]
 
@@ -343,7 +344,7 @@ class _Spread:
     Made packed by :func:`_ring_spread`, followed in place by :func:`ring_spread_after`.
     """
 
-    __slots__ = ("nodes", "ranges", "rings", "room", "row_hint", "stamps", "tag", "tail", "total", "weights")
+    __slots__ = ("nodes", "ranges", "rings", "room", "search", "tail", "total", "weights")
 
     def __init__(self, offsets: np.ndarray, nodes: np.ndarray, weights: np.ndarray, total: np.ndarray,
                  rings: np.ndarray):  # fmt: skip
@@ -351,9 +352,7 @@ class _Spread:
         self.room = np.diff(offsets).astype(np.int32)
         self.nodes, self.weights, self.rings, self.total = nodes, weights, rings, total
         self.tail = len(nodes)
-        # (the stamps of :func:`_rings_near`, its last tag and the room it gives a row)
-        self.stamps, self.tag = None, 0
-        self.row_hint = int(self.room.max()) + int(self.room.max()) // 4 if len(self.room) else 16
+        self.search = _RingSearch(int(self.room.max()) if len(self.room) else 0)
 
     def packed(self) -> tuple:
         """The spread as a packed CSR: ``(offsets (N + 1,) int32, nodes, weights, total, rings)``."""
@@ -365,56 +364,30 @@ class _Spread:
         return offsets, self.nodes[at], self.weights[at], self.total, self.rings[at]
 
 
-def _ring_spread(tets, alive, node_count: int, k: int) -> _Spread:
+def _ring_spread(tets, alive, node_count: int, k: int, threads=None) -> _Spread:
     """:func:`ring_spread` with the (N,) float64 sums ``Z`` and the ring of each entry, as a :class:`_Spread`."""
     N = int(node_count)
     if k == 0:
         nodes = np.arange(N, dtype=np.int32)
         return _Spread(np.arange(N + 1, dtype=np.int32), nodes, np.ones(N, dtype=np.float32), np.ones(N),
                        np.zeros(N, dtype=np.uint8))  # fmt: skip
-    live = np.asarray(tets)[np.asarray(alive, dtype=bool)].astype(np.int64)
-    keys, rings = _rings(_adjacency(live, N), np.arange(N, dtype=np.int64), N, k)
-    rows, cols = keys // N, keys % N
+    # every node's row from the incidence of every tet (the search passes the dead ones): the corners
+    # ``4 * tet + i`` by node, in order
+    tets = np.ascontiguousarray(tets, dtype=np.int32)
+    corners = np.argsort(tets.ravel(), kind="stable").astype(np.int32)
+    offsets = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(np.bincount(tets.ravel(), minlength=N), out=offsets[1:])
+    search = _RingSearch(0)  # (no room: rows counted, then written at their places)
+    count, cols, rings = _rings_near(search, (offsets, corners), tets, alive, np.arange(N), N, k, threads)
+    rows = np.repeat(np.arange(N), count)
     w = (k + 1 - rings) / (k + 1)
     total = np.bincount(rows, weights=w, minlength=N)
     offsets = np.zeros(N + 1, dtype=np.int32)
-    np.cumsum(np.bincount(rows, minlength=N), out=offsets[1:])
-    return _Spread(offsets, cols.astype(np.int32), (w / total[cols]).astype(np.float32), total, rings.astype(np.uint8))
-
-
-def _adjacency(live: np.ndarray, N: int) -> tuple:
-    """The edges of the (L, 4) int64 tets ``live`` as a CSR over ``N`` nodes: ``(offsets (N + 1,), columns)``."""
-    pairs = live[:, [0, 0, 0, 1, 1, 2, 1, 2, 3, 2, 3, 3]].reshape(-1, 2, 6).transpose(0, 2, 1).reshape(-1, 2)
-    keys = _unique(np.concatenate([pairs[:, 0] * N + pairs[:, 1], pairs[:, 1] * N + pairs[:, 0]]))
-    offsets = np.zeros(N + 1, dtype=np.int64)
-    np.cumsum(np.bincount(keys // N, minlength=N), out=offsets[1:])
-    return offsets, keys % N
-
-
-def _rings(adjacency: tuple, sources: np.ndarray, N: int, k: int) -> tuple:
-    """Breadth-first rings from every node of ``sources`` (ascending int64) at once, up to ``k``: ``(keys,
-    rings)``, ``keys = source * N + node`` ascending and each one's ring."""
-    adj_offsets, adj_cols = adjacency
-    degree = np.diff(adj_offsets)
-    seen = sources * N + sources
-    found = [(seen, np.zeros(len(seen), dtype=np.int64))]
-    frontier = seen
-    for ring in range(1, k + 1):
-        source, node = frontier // N, frontier % N
-        count = degree[node]
-        start = np.repeat(adj_offsets[node] - (np.cumsum(count) - count), count)
-        reached = np.repeat(source, count) * N + adj_cols[start + np.arange(count.sum())]
-        reached = _unique(reached)
-        # ``seen`` is sorted: a key is new where the search does not land on itself
-        slot = np.minimum(np.searchsorted(seen, reached), len(seen) - 1)
-        reached = reached[seen[slot] != reached]
-        found.append((reached, np.full(len(reached), ring, dtype=np.int64)))
-        seen = np.sort(np.concatenate([seen, reached]))
-        frontier = reached
-    keys = np.concatenate([f[0] for f in found])
-    rings = np.concatenate([f[1] for f in found])
-    order = np.argsort(keys, kind="stable")
-    return keys[order], rings[order]
+    np.cumsum(count, out=offsets[1:])
+    spread = _Spread(offsets, cols, (w / total[cols]).astype(np.float32), total, rings)
+    search.row_hint = spread.search.row_hint
+    spread.search = search  # (its stamps, for the follows)
+    return spread
 
 
 def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node_count: int, k: int,
@@ -437,7 +410,7 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
     N = int(node_count)
     n_old = len(spread.ranges)
     if k == 0 or n_old > N or 8 * len(touched) > N:  # (an edit of much of the mesh: made anew)
-        return _ring_spread(tets, alive, N, k)
+        return _ring_spread(tets, alive, N, k, threads)
     tets = np.asarray(tets)
     alive = np.asarray(alive, dtype=bool)
     # the nodes by edge distance from the touched ones, up to 2 k
@@ -451,7 +424,7 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
         within[level] = True
         levels.append(level)
     redo = np.sort(np.concatenate(levels[: k + 1]))
-    count, cols, rings = _rings_near(spread, incidence, tets, alive, redo, N, k, threads)
+    count, cols, rings = _rings_near(spread.search, incidence, tets, alive, redo, N, k, threads)
     rows = np.repeat(redo, count)
     w = (k + 1 - rings) / (k + 1)
     # the per-row arrays grown to the added nodes (their rows are redone: every added node is touched)
@@ -495,15 +468,27 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
 _ROW_GRAIN = 1024
 
 
-def _rings_near(spread: _Spread, incidence: tuple, tets: np.ndarray, alive: np.ndarray, sources: np.ndarray,
+class _RingSearch:
+    """What :func:`_rings_near` keeps between calls: each CPU thread's node and tet stamps (a row's tag is
+    new each time, so they are never cleared), the last tag, and the room it gives a row (the largest row
+    met so far and a quarter; 0: the rows are counted first)."""
+
+    __slots__ = ("row_hint", "stamps", "tag")
+
+    def __init__(self, largest: int):
+        self.stamps, self.tag = None, 0
+        self.row_hint = largest + largest // 4 if largest else 0
+
+
+def _rings_near(search: _RingSearch, incidence: tuple, tets: np.ndarray, alive: np.ndarray, sources: np.ndarray,
                 N: int, k: int, threads=None) -> tuple:  # fmt: skip
-    """The rows of :func:`_rings` for ``sources`` (ascending) as ``(count (R,) int64, nodes (sum,) int32,
-    rings (sum,) uint8)`` (each row's nodes ascending), by a search per source over the live tets round
-    each node (``incidence`` as :func:`_tets_at` takes it) in :func:`~warpblob.sim._contact_kernels.
-    ring_rows_kernel`. Each CPU thread searches its own share of the rows with its own node and tet stamps
-    (kept in ``spread`` between calls: a row's tag is new, so nothing is cleared) and writes them one after
-    the other in room for ``spread.row_hint`` entries a row (the largest row met so far, and a quarter);
-    where that was too little, the rows are written again at their places, the sizes known."""
+    """The k-ring rows of ``sources`` (ascending node ids): ``(count (R,) int64, nodes (sum,) int32, rings
+    (sum,) uint8)``, each row the nodes within ``k`` edges of its source over the live tets, ascending, with
+    their rings, the rows in source order. A breadth-first search per source over the live tets round each
+    node (``incidence`` as :func:`_tets_at` takes it) in :func:`~warpblob.sim._contact_kernels.
+    ring_rows_kernel`, each CPU thread its own share of the rows with its own stamps (``search``); the rows
+    are written one after the other in room for ``search.row_hint`` entries a row, and where that was too
+    little, written again at their places, the sizes known."""
     R = len(sources)
     if R == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint8)
@@ -515,13 +500,13 @@ def _rings_near(spread: _Spread, incidence: tuple, tets: np.ndarray, alive: np.n
     tets = np.ascontiguousarray(tets, dtype=np.int32)
     T = len(tets)
     P = max(1, min(thread_count() if threads is None else int(threads), R))
-    stamps = spread.stamps
+    stamps = search.stamps
     if (stamps is None or stamps[0].shape[0] < P or stamps[0].shape[1] < N or stamps[1].shape[1] < T
-            or spread.tag + 2 * R >= np.iinfo(np.int32).max):  # fmt: skip
-        stamps = spread.stamps = (np.zeros((P, N + N // 8), dtype=np.int32), np.zeros((P, T + T // 8), np.int32))
-        spread.tag = 0
+            or search.tag + 2 * R >= np.iinfo(np.int32).max):  # fmt: skip
+        stamps = search.stamps = (np.zeros((P, N + N // 8), dtype=np.int32), np.zeros((P, T + T // 8), np.int32))
+        search.tag = 0
     per = -(-R // P)
-    room = per * spread.row_hint
+    room = per * search.row_hint
     found, found_ring = np.empty((P, N), dtype=np.int32), np.empty((P, N), dtype=np.uint8)
     count = np.empty(R, dtype=np.int32)
     nodes, rings = np.empty(P * room, np.int32), np.empty(P * room, np.uint8)
@@ -531,11 +516,11 @@ def _rings_near(spread: _Spread, incidence: tuple, tets: np.ndarray, alive: np.n
     scratch = [wp.array(stamps[0], dtype=wp.int32, copy=False), wp.array(stamps[1], dtype=wp.int32, copy=False),
                wp.array(found, dtype=wp.int32, copy=False), wp.array(found_ring, dtype=wp.uint8, copy=False),
                host_array(count, wp.int32)]  # fmt: skip
-    launch(ck.ring_rows_kernel, P, [*args, spread.tag, host_array(np.zeros(0, np.int32), wp.int32), room],
+    launch(ck.ring_rows_kernel, P, [*args, search.tag, host_array(np.zeros(0, np.int32), wp.int32), room],
            [*scratch, host_array(nodes, wp.int32), host_array(rings, wp.uint8)], "cpu", threads, min_chunk=1)
-    spread.tag += R
+    search.tag += R
     size = np.abs(count)
-    spread.row_hint = max(spread.row_hint, int(size.max()) + int(size.max()) // 4)
+    search.row_hint = max(search.row_hint, int(size.max()) + int(size.max()) // 4)
     if count.min() > 0:  # (every row in its piece's room: the pieces' rows one after the other)
         used = np.add.reduceat(size, np.arange(0, R, per))
         keep = np.concatenate([np.arange(p * room, p * room + u) for p, u in enumerate(used.tolist())])
@@ -543,9 +528,9 @@ def _rings_near(spread: _Spread, incidence: tuple, tets: np.ndarray, alive: np.n
     first = np.zeros(R, dtype=np.int32)
     np.cumsum(size[:-1], out=first[1:])
     nodes, rings = np.empty(int(size.sum()), np.int32), np.empty(int(size.sum()), np.uint8)
-    launch(ck.ring_rows_kernel, P, [*args, spread.tag, host_array(first, wp.int32), 0],
+    launch(ck.ring_rows_kernel, P, [*args, search.tag, host_array(first, wp.int32), 0],
            [*scratch, host_array(nodes, wp.int32), host_array(rings, wp.uint8)], "cpu", threads, min_chunk=1)
-    spread.tag += R
+    search.tag += R
     return size.astype(np.int64), nodes, rings
 
 
@@ -793,7 +778,7 @@ class Contact:
                 self._rings[k] = ring_spread_after(before, e.tets_host, live, e.node_count, k, self._follow,
                                                    self._incidence, self.threads)  # fmt: skip
             else:
-                self._rings[k] = _ring_spread(e.tets_host, live, e.node_count, k)
+                self._rings[k] = _ring_spread(e.tets_host, live, e.node_count, k, self.threads)
         return self._rings[k]
 
     def _build_buffers(self) -> None:
