@@ -94,7 +94,7 @@ import warp as wp
 from .._errors import SimulationError, ToolError
 from .._linearize import linearize
 from .._parallel import launch, thread_count
-from .._stages import device_array, host_array, rows_any
+from .._stages import device_array, host_array, room, rows_any
 from ..field import evaluate
 from ..mesh import TetMesh
 from ..tools import Path, Tool
@@ -789,35 +789,47 @@ class Contact:
         sizes = [len(r.samples) for r in tools]
         S = int(sum(sizes))
         self.sample_count = S
-        self._tool_first = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
         krings = sorted({r.kring for r in tools})
         self.group_count = max(1, len(krings))
-        vec = lambda n: wp.zeros(n, dtype=wp.vec3, device=dev)  # noqa: E731
-        self._local = wp.array(np.concatenate([r.samples for r in tools]).astype(np.float32) if S else
-                               np.zeros((0, 3), np.float32), dtype=wp.vec3, device=dev)  # fmt: skip
-        self._area = wp.array(np.concatenate([r.area for r in tools]).astype(np.float32) if S else
-                              np.zeros(0, np.float32), dtype=float, device=dev)  # fmt: skip
-        self._point_tool = wp.array(np.repeat(np.arange(K, dtype=np.int32), sizes), dtype=wp.int32, device=dev)
-        self._tool_first_wp = wp.array(self._tool_first, dtype=wp.int32, device=dev)
-        self._modes = wp.array(np.array([CONTACT_MODES[r.contact] for r in tools] or [0], np.int32), dtype=wp.int32,
-                               device=dev)  # fmt: skip
-        self._groups = wp.array(np.array([krings.index(r.kring) for r in tools] or [0], np.int32), dtype=wp.int32,
-                                device=dev)  # fmt: skip
-        self._stiffness = wp.array(np.array([r.stiffness for r in tools] or [0.0], np.float32), dtype=float,
-                                   device=dev)  # fmt: skip
-        self._poses = wp.zeros(max(K, 1), dtype=wp.transform, device=dev)
-        self._travel = vec(max(K, 1))
-        self._world, self._query = vec(S), vec(S)
-        self._cell = wp.zeros(S, dtype=wp.int32, device=dev)
-        self._bary = wp.zeros(S, dtype=wp.vec4, device=dev)
-        self._depth = wp.zeros(S, dtype=float, device=dev)
-        self._law = wp.zeros(S, dtype=wp.vec2, device=dev)
-        self._direction = vec(S)
-        self._entry_node = wp.zeros(4 * S, dtype=wp.int32, device=dev)
-        self._entry_weight = wp.zeros(4 * S, dtype=float, device=dev)
+        # the tools' own arrays, made again only when the tools or the device change
+        key = (dev, tuple(id(r) for r in tools))
+        if getattr(self, "_tools_key", None) != key:
+            self._tools_key = key
+            self._tool_first = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
+            self._local = wp.array(np.concatenate([r.samples for r in tools]).astype(np.float32) if S else
+                                   np.zeros((0, 3), np.float32), dtype=wp.vec3, device=dev)  # fmt: skip
+            self._area = wp.array(np.concatenate([r.area for r in tools]).astype(np.float32) if S else
+                                  np.zeros(0, np.float32), dtype=float, device=dev)  # fmt: skip
+            self._point_tool = wp.array(np.repeat(np.arange(K, dtype=np.int32), sizes), dtype=wp.int32, device=dev)
+            self._tool_first_wp = wp.array(self._tool_first, dtype=wp.int32, device=dev)
+            self._modes = wp.array(np.array([CONTACT_MODES[r.contact] for r in tools] or [0], np.int32),
+                                   dtype=wp.int32, device=dev)  # fmt: skip
+            self._groups = wp.array(np.array([krings.index(r.kring) for r in tools] or [0], np.int32),
+                                    dtype=wp.int32, device=dev)  # fmt: skip
+            self._stiffness = wp.array(np.array([r.stiffness for r in tools] or [0.0], np.float32), dtype=float,
+                                       device=dev)  # fmt: skip
+        # the state arrays zeroed, in kept bases with room (a cut's rebind adds a few nodes)
+        bases = self.__dict__.setdefault("_zero_bases", {})
+
+        def zeros(name: str, n: int, dtype) -> wp.array:
+            bases[name], view = room(bases.get(name), n, dtype, dev)
+            view.zero_()
+            return view
+
+        K1 = max(K, 1)
+        self._poses = zeros("poses", K1, wp.transform)
+        self._travel = zeros("travel", K1, wp.vec3)
+        self._world, self._query = zeros("world", S, wp.vec3), zeros("query", S, wp.vec3)
+        self._cell = zeros("cell", S, wp.int32)
+        self._bary = zeros("bary", S, wp.vec4)
+        self._depth = zeros("depth", S, float)
+        self._law = zeros("law", S, wp.vec2)
+        self._direction = zeros("direction", S, wp.vec3)
+        self._entry_node = zeros("entry_node", 4 * S, wp.int32)
+        self._entry_weight = zeros("entry_weight", 4 * S, float)
         # radix sort buffers: twice the entries
-        self._keys = wp.zeros(8 * S, dtype=wp.int32, device=dev)
-        self._entries = wp.zeros(8 * S, dtype=wp.int32, device=dev)
+        self._keys = zeros("keys", 8 * S, wp.int32)
+        self._entries = zeros("entries", 8 * S, wp.int32)
         G = self.group_count
         rings = [self._ring(kr) for kr in krings] or [self._ring(0)]
         # (one group: the spread's own arrays, shared on the CPU, not copied; a follow rewrites them in place
@@ -832,13 +844,13 @@ class Contact:
         self._ring_ranges = device_array(ranges, wp.vec2i, dev, copy=False)
         self._ring_nodes = device_array(nodes, wp.int32, dev, copy=False)
         self._ring_weights = device_array(weights, float, dev, copy=False)
-        self._source_force = vec(G * N)
-        self._source_block = wp.zeros(G * N, dtype=wp.mat33, device=dev)
-        self._source_weight = wp.zeros(G * N, dtype=float, device=dev)
-        self._mark = wp.zeros(N, dtype=wp.uint8, device=dev)
-        self._totals = vec(max(K, 1))
-        self._counts = wp.zeros(max(K, 1), dtype=wp.int32, device=dev)
-        self._deepest = wp.zeros(max(K, 1), dtype=float, device=dev)
+        self._source_force = zeros("source_force", G * N, wp.vec3)
+        self._source_block = zeros("source_block", G * N, wp.mat33)
+        self._source_weight = zeros("source_weight", G * N, float)
+        self._mark = zeros("mark", N, wp.uint8)
+        self._totals = zeros("totals", K1, wp.vec3)
+        self._counts = zeros("counts", K1, wp.int32)
+        self._deepest = zeros("deepest", K1, float)
         self.forces = np.zeros((K, 3))
         self.counts = np.zeros(K, dtype=np.int64)
         self.deepest = np.zeros(K)
