@@ -153,7 +153,8 @@ def test_the_spread_follows_the_structure_rings_and_keeps_the_force(block):
             row = slice(offsets[node], offsets[node + 1])
             within = [np.union1d(structure.k_ring(node, r), [node]) for r in range(k + 1)]
             assert np.array_equal(nodes[row], within[k])
-            np.testing.assert_array_equal(rings[row], [min(r for r in range(k + 1) if c in within[r]) for c in nodes[row]])
+            ring_of = [min(r for r in range(k + 1) if c in within[r]) for c in nodes[row]]
+            np.testing.assert_array_equal(rings[row], ring_of)
     offsets, nodes, weights = ring_spread(block.tets, alive, block.node_count, 2)
     rows = np.repeat(np.arange(block.node_count), np.diff(offsets))
     for node in (0, 17, block.node_count // 2, block.node_count - 1):
@@ -219,6 +220,35 @@ def test_field_contact_needs_the_model(block):
     sim.add_tool(Probe(0.4), Path.line((0, 0, 1), (0, 0, 0), 1.0), stiffness=1.0, model=MODEL)
     with pytest.raises(SimulationError, match="already has a model"):
         sim.add_tool(Probe(0.4), Path.line((0, 0, 1), (0, 0, 0), 1.0), stiffness=1.0, model=wb.scenes.peanut())
+
+
+def test_the_nodes_by_edge_distance_from_a_set_are_numpy_s(block):
+    """The search a cut's follow starts from (``_levels``: the nodes within d edges of a set, level by level,
+    over the live tets) against a breadth-first search in numpy over the live tets' edges, with a fifth of
+    the tets dead, from one node and from a scattered set, to depth 4."""
+    from warpblob.sim._contact import _levels, _RingSearch
+
+    rng = np.random.default_rng(2)
+    tets, N = block.tets.astype(np.int32), block.node_count
+    alive = rng.random(len(tets)) > 0.2
+    order = np.argsort(tets.ravel(), kind="stable").astype(np.int32)
+    offsets = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(np.bincount(tets.ravel(), minlength=N), out=offsets[1:])
+    live = tets[alive]
+    pairs = np.concatenate([live[:, [a, b]] for a in range(4) for b in range(4) if a != b])
+    search = _RingSearch(0)
+    for sources in (np.array([N // 2]), np.unique(rng.integers(0, N, 12))):
+        found, ends = _levels(search, (offsets, order), tets, alive, sources.astype(np.int32), N, 4)
+        seen = np.zeros(N, dtype=bool)
+        seen[sources] = True
+        level = sources
+        for d in range(5):
+            got = found[(ends[d - 1] if d else 0) : ends[d]]
+            assert len(np.unique(got)) == len(got)
+            np.testing.assert_array_equal(np.sort(got), np.sort(level))
+            step = np.unique(pairs[np.isin(pairs[:, 0], level), 1])
+            level = step[~seen[step]]
+            seen[level] = True
 
 
 def test_sorted_lengths_are_spliced_as_a_sort_anew_would_give_them():

@@ -355,7 +355,8 @@ def test_a_contact_follows_random_cuts_as_a_new_bind_would_make_it():
         edges = e.rest_host[t[:, [1, 2, 3, 2, 3, 3]]] - e.rest_host[t[:, [0, 0, 0, 1, 1, 2]]]
         assert contact.edge == float(np.median(np.linalg.norm(edges, axis=2)))  # (the live tets' median edge)
         # (the lengths it keeps sorted to take it: a regular box's median hardly moves with a few of them)
-        np.testing.assert_array_equal(contact._sorted_lengths.sorted(), np.sort(np.linalg.norm(edges, axis=2), axis=None))
+        lengths = np.sort(np.linalg.norm(edges, axis=2), axis=None)
+        np.testing.assert_array_equal(contact._sorted_lengths.sorted(), lengths)
         for a_, b_ in zip(_ring_spread(e.tets_host, live, e.node_count, 2).packed(), contact._rings[2].packed()):
             np.testing.assert_array_equal(a_, b_)
     assert e.node_count > len(box.nodes)

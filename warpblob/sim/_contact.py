@@ -413,17 +413,9 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
         return _ring_spread(tets, alive, N, k, threads)
     tets = np.asarray(tets)
     alive = np.asarray(alive, dtype=bool)
-    # the nodes by edge distance from the touched ones, up to 2 k
-    within = np.zeros(N, dtype=bool)
-    level = np.unique(np.asarray(touched, dtype=np.int64))
-    within[level] = True
-    levels = [level]
-    for _ in range(2 * k):
-        near = _unique(tets[_tets_at(incidence, level, alive)].ravel().astype(np.int64))
-        level = near[~within[near]]
-        within[level] = True
-        levels.append(level)
-    redo = np.sort(np.concatenate(levels[: k + 1]))
+    # the nodes by edge distance from the touched ones, up to 2 k (one search from all of them)
+    order, level_end = _levels(spread.search, incidence, tets, alive, np.unique(touched), N, 2 * k)
+    redo = np.sort(order[: level_end[k]]).astype(np.int64)
     count, cols, rings = _rings_near(spread.search, incidence, tets, alive, redo, N, k, threads)
     rows = np.repeat(redo, count)
     w = (k + 1 - rings) / (k + 1)
@@ -456,7 +448,7 @@ def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node
     spread.weights[at] = (w / total[cols]).astype(np.float32)
     spread.rings[at] = rings
     # the rows within 2 k weighed again by the new sums
-    again = np.concatenate(levels[k + 1 :]).astype(np.int32)
+    again = order[level_end[k] : level_end[2 * k]]
     launch(ck.reweigh_rows_kernel, len(again),
            [host_array(again, wp.int32), host_array(spread.ranges, wp.vec2i), host_array(spread.nodes, wp.int32),
             host_array(spread.rings, wp.uint8), host_array(total, wp.float64), int(k)],
@@ -469,15 +461,55 @@ _ROW_GRAIN = 1024
 
 
 class _RingSearch:
-    """What :func:`_rings_near` keeps between calls: each CPU thread's node and tet stamps (a row's tag is
-    new each time, so they are never cleared), the last tag, and the room it gives a row (the largest row
-    met so far and a quarter; 0: the rows are counted first)."""
+    """What :func:`_rings_near` and :func:`_levels` keep between calls: each CPU thread's node and tet stamps
+    (a search's tags are new each time, so they are never cleared), the last tag, and the room a row gets
+    (the largest row met so far and a quarter; 0: the rows are counted first)."""
 
     __slots__ = ("row_hint", "stamps", "tag")
 
     def __init__(self, largest: int):
         self.stamps, self.tag = None, 0
         self.row_hint = largest + largest // 4 if largest else 0
+
+    def stamps_for(self, pieces: int, N: int, T: int, tags: int) -> tuple:
+        """The (pieces, >= N) node and (pieces, >= T) tet stamps, with ``tags`` new tags from ``self.tag`` on
+        (made anew, zero, where too small or the tags would overflow)."""
+        st = self.stamps
+        if (st is None or st[0].shape[0] < pieces or st[0].shape[1] < N or st[1].shape[1] < T
+                or self.tag + tags >= np.iinfo(np.int32).max):  # fmt: skip
+            self.stamps = (np.zeros((pieces, N + N // 8), dtype=np.int32), np.zeros((pieces, T + T // 8), np.int32))
+            self.tag = 0
+        return self.stamps
+
+
+def _search_arrays(incidence: tuple, tets: np.ndarray, alive: np.ndarray) -> list:
+    """The incidence (as :func:`_tets_at` takes it: its ranges made from packed offsets), the (T, 4) int32
+    ``tets`` and ``alive`` as the search kernels read them."""
+    first, corners = incidence
+    if first.ndim == 2:
+        ranges = np.ascontiguousarray(first, dtype=np.int32)
+    else:
+        ranges = np.ascontiguousarray(np.stack([first[:-1], first[1:]], axis=1), dtype=np.int32)
+    return [host_array(ranges, wp.vec2i), host_array(np.ascontiguousarray(corners, dtype=np.int32), wp.int32),
+            host_array(tets, wp.vec4i), host_array(np.ascontiguousarray(alive).view(np.uint8), wp.uint8)]
+
+
+def _levels(search: _RingSearch, incidence: tuple, tets: np.ndarray, alive: np.ndarray, sources: np.ndarray,
+            N: int, depth: int) -> tuple:  # fmt: skip
+    """The nodes within ``depth`` edges of ``sources`` (distinct) over the live tets, by level: ``(order
+    (M,) int32, level_end (depth + 1,) int32)``, level ``d`` the nodes ``order[level_end[d - 1]:level_end[d]]``
+    (the sources first); one search from all of them (:func:`~warpblob.sim._contact_kernels.
+    node_levels_kernel`, one thread, with the first thread's stamps of ``search``)."""
+    tets = np.ascontiguousarray(tets, dtype=np.int32)
+    stamps = search.stamps_for(1, N, len(tets), 1)
+    order, level_end = np.empty(N, dtype=np.int32), np.empty(depth + 1, dtype=np.int32)
+    wp.launch(ck.node_levels_kernel, dim=1, device="cpu",
+              inputs=[host_array(np.ascontiguousarray(sources, dtype=np.int32), wp.int32),
+                      *_search_arrays(incidence, tets, alive), int(depth), search.tag + 1, 0,
+                      host_array(stamps[0][0], wp.int32), host_array(stamps[1][0], wp.int32),
+                      host_array(order, wp.int32), host_array(level_end, wp.int32)])  # fmt: skip
+    search.tag += 1
+    return order[: int(level_end[-1])], level_end
 
 
 def _rings_near(search: _RingSearch, incidence: tuple, tets: np.ndarray, alive: np.ndarray, sources: np.ndarray,
@@ -492,27 +524,16 @@ def _rings_near(search: _RingSearch, incidence: tuple, tets: np.ndarray, alive: 
     R = len(sources)
     if R == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint8)
-    first_in, corners = incidence
-    if first_in.ndim == 2:
-        ranges = np.ascontiguousarray(first_in, dtype=np.int32)
-    else:
-        ranges = np.ascontiguousarray(np.stack([first_in[:-1], first_in[1:]], axis=1), dtype=np.int32)
     tets = np.ascontiguousarray(tets, dtype=np.int32)
-    T = len(tets)
     P = max(1, min(thread_count() if threads is None else int(threads), R))
-    stamps = search.stamps
-    if (stamps is None or stamps[0].shape[0] < P or stamps[0].shape[1] < N or stamps[1].shape[1] < T
-            or search.tag + 2 * R >= np.iinfo(np.int32).max):  # fmt: skip
-        stamps = search.stamps = (np.zeros((P, N + N // 8), dtype=np.int32), np.zeros((P, T + T // 8), np.int32))
-        search.tag = 0
+    stamps = search.stamps_for(P, N, len(tets), 2 * R)
     per = -(-R // P)
     room = per * search.row_hint
     found, found_ring = np.empty((P, N), dtype=np.int32), np.empty((P, N), dtype=np.uint8)
     count = np.empty(R, dtype=np.int32)
     nodes, rings = np.empty(P * room, np.int32), np.empty(P * room, np.uint8)
-    args = [host_array(np.ascontiguousarray(sources, dtype=np.int32), wp.int32), host_array(ranges, wp.vec2i),
-            host_array(np.ascontiguousarray(corners, dtype=np.int32), wp.int32), host_array(tets, wp.vec4i),
-            host_array(np.ascontiguousarray(alive).view(np.uint8), wp.uint8), int(k), per]  # fmt: skip
+    args = [host_array(np.ascontiguousarray(sources, dtype=np.int32), wp.int32),
+            *_search_arrays(incidence, tets, alive), int(k), per]  # fmt: skip
     scratch = [wp.array(stamps[0], dtype=wp.int32, copy=False), wp.array(stamps[1], dtype=wp.int32, copy=False),
                wp.array(found, dtype=wp.int32, copy=False), wp.array(found_ring, dtype=wp.uint8, copy=False),
                host_array(count, wp.int32)]  # fmt: skip

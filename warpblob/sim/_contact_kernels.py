@@ -638,3 +638,49 @@ def ring_rows_kernel(
         for j in range(size):
             nodes[start + j] = found[p, j]
             rings[start + j] = found_ring[p, j]
+
+
+@wp.kernel(enable_backward=False)
+def node_levels_kernel(
+    sources: wp.array(dtype=wp.int32),
+    ranges: wp.array(dtype=wp.vec2i),
+    corners: wp.array(dtype=wp.int32),
+    tets: wp.array(dtype=wp.vec4i),
+    live: wp.array(dtype=wp.uint8),
+    depth: int,
+    tag: int,
+    offset: int,
+    node_stamp: wp.array(dtype=wp.int32),
+    tet_stamp: wp.array(dtype=wp.int32),
+    order: wp.array(dtype=wp.int32),
+    level_end: wp.array(dtype=wp.int32),
+):
+    """The nodes within ``depth`` edges of the ``sources`` (distinct) over the live tets, level by level
+    (one thread: a breadth-first search from all of them at once; ``incidence`` as in
+    :func:`ring_rows_kernel`, the stamps marked with ``tag``): ``order`` holds them by level, the sources
+    first, level ``d`` ending at ``level_end[d]`` (:func:`warpblob.sim._contact.ring_spread_after`)."""
+    size = int(0)
+    for i in range(sources.shape[0]):
+        s = sources[i]
+        node_stamp[s] = tag
+        order[size] = s
+        size += 1
+    level_end[0] = size
+    level_start = int(0)
+    for d in range(1, depth + 1):
+        end = size
+        for f in range(level_start, end):
+            span = ranges[order[f]]
+            for c in range(span[0], span[1]):
+                t = corners[c] // 4
+                if live[t] != wp.uint8(0) and tet_stamp[t] != tag:
+                    tet_stamp[t] = tag
+                    tet = tets[t]
+                    for m in range(4):
+                        b = tet[m]
+                        if node_stamp[b] != tag:
+                            node_stamp[b] = tag
+                            order[size] = b
+                            size += 1
+        level_end[d] = size
+        level_start = end
