@@ -172,38 +172,19 @@ def _edge_lengths(rest: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.linalg.norm(edges, axis=2)
 
 
-def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray, out: np.ndarray | None = None
-                  ) -> np.ndarray | None:  # fmt: skip
-    """``ordered`` (ascending) with the values ``gone`` taken out and ``came`` put in, ascending, by one
-    pass of slices between the changed places (not a pass per change, nor boolean masks over all of it); None
-    where a value of ``gone`` is not in ``ordered`` (then sort anew). Equal values are interchangeable, so
-    each one taken out is any of its equals, each one put in goes before the first value not below it.
-    ``out``: a 1-D array of room, not ``ordered``'s memory, to write the result at its start (a view of it is
-    returned; memory in use is not faulted in again, as a new array's is); too small or None: a new array."""
-    gone, came = np.sort(gone), np.sort(came)
+def _sorted_after(ordered: np.ndarray, gone: np.ndarray, came: np.ndarray) -> np.ndarray | None:
+    """``ordered`` (ascending) with the values ``gone`` taken out and ``came`` put in, ascending (two
+    vectorized passes: the slots taken out dropped, the values put in inserted at their places); None where
+    a value of ``gone`` is not in ``ordered`` (then sort anew). Equal values are interchangeable, so each
+    one taken out is any of its equals, each one put in goes before the first value not below it."""
+    gone, came = np.sort(gone), np.sort(came).astype(ordered.dtype, copy=False)
     n = len(ordered)
     # each value taken out at its own slot among its equals
     at = np.searchsorted(ordered, gone) + (np.arange(len(gone)) - np.searchsorted(gone, gone))
     if len(gone) and (at[-1] >= n or np.any(ordered[np.minimum(at, n - 1)] != gone)):
         return None
-    into = np.searchsorted(ordered, came)
-    # the changes by place, an insertion before a removal at the same place (it goes before that value)
-    place = np.concatenate([into, at])
-    order = np.lexsort((np.arange(len(place)), place))
-    pieces, cur, m = [], 0, len(into)
-    for p, i in zip(place[order].tolist(), order.tolist()):
-        if p > cur:
-            pieces.append(ordered[cur:p])
-            cur = p
-        if i < m:
-            pieces.append(came[i : i + 1])
-        else:
-            cur = p + 1
-    pieces.append(ordered[cur:])
-    size = n - len(gone) + len(came)
-    if out is None or len(out) < size:
-        return np.concatenate(pieces)
-    return np.concatenate(pieces, out=out[:size])
+    kept = np.delete(ordered, at) if len(at) else ordered
+    return np.insert(kept, np.searchsorted(kept, came), came) if len(came) else kept.copy()
 
 
 class _SortedLengths:
