@@ -483,14 +483,16 @@ def _levels(search: _RingSearch, incidence: tuple, tets: np.ndarray, alive: np.n
     node_levels_kernel`, one thread, with the first thread's stamps of ``search``)."""
     tets = np.ascontiguousarray(tets, dtype=np.int32)
     stamps = search.stamps_for(1, N, len(tets), 1)
-    order, level_end = np.empty(N, dtype=np.int32), np.empty(depth + 1, dtype=np.int32)
+    order, level = np.empty((1, N), dtype=np.int32), np.empty((1, N), dtype=np.uint8)
+    level_end = np.empty(depth + 1, dtype=np.int32)
     wp.launch(ck.node_levels_kernel, dim=1, device="cpu",
               inputs=[host_array(np.ascontiguousarray(sources, dtype=np.int32), wp.int32),
                       *_search_arrays(incidence, tets, alive), int(depth), search.tag + 1, 0,
-                      host_array(stamps[0][0], wp.int32), host_array(stamps[1][0], wp.int32),
-                      host_array(order, wp.int32), host_array(level_end, wp.int32)])  # fmt: skip
+                      *(wp.array(a, dtype=t, copy=False) for a, t in ((stamps[0], wp.int32), (stamps[1], wp.int32),
+                                                                       (order, wp.int32), (level, wp.uint8))),
+                      host_array(level_end, wp.int32)])  # fmt: skip
     search.tag += 1
-    return order[: int(level_end[-1])], level_end
+    return order[0, : int(level_end[-1])], level_end
 
 
 def _rings_near(search: _RingSearch, incidence: tuple, tets: np.ndarray, alive: np.ndarray, sources: np.ndarray,

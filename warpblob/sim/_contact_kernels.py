@@ -552,6 +552,45 @@ def reweigh_rows_kernel(
         weights[j] = wp.float32(w / total[nodes[j]])
 
 
+@wp.func
+def search_level(
+    ranges: wp.array(dtype=wp.vec2i),
+    corners: wp.array(dtype=wp.int32),
+    tets: wp.array(dtype=wp.vec4i),
+    live: wp.array(dtype=wp.uint8),
+    p: int,
+    tag: int,
+    ring: int,
+    start: int,
+    end: int,
+    size: int,
+    node_stamp: wp.array2d(dtype=wp.int32),
+    tet_stamp: wp.array2d(dtype=wp.int32),
+    found: wp.array2d(dtype=wp.int32),
+    found_ring: wp.array2d(dtype=wp.uint8),
+) -> int:
+    """One level of a breadth-first search over the live tets (row ``p`` of the stamps and of ``found``): the
+    nodes of the tets round ``found[p, start:end]`` not yet stamped ``tag`` appended to ``found[p]`` from
+    ``size`` on with ring ``ring``, each tet looked at once; the new size. ``ranges``/``corners``: the
+    incidence lists, corner ``4 * tet + i`` (:func:`ring_rows_kernel`, :func:`node_levels_kernel`)."""
+    n = size
+    for f in range(start, end):
+        span = ranges[found[p, f]]
+        for c in range(span[0], span[1]):
+            t = corners[c] // 4
+            if live[t] != wp.uint8(0) and tet_stamp[p, t] != tag:
+                tet_stamp[p, t] = tag
+                tet = tets[t]
+                for m in range(4):
+                    b = tet[m]
+                    if node_stamp[p, b] != tag:
+                        node_stamp[p, b] = tag
+                        found[p, n] = b
+                        found_ring[p, n] = wp.uint8(ring)
+                        n += 1
+    return n
+
+
 @wp.kernel(enable_backward=False)
 def ring_rows_kernel(
     sources: wp.array(dtype=wp.int32),
@@ -598,20 +637,8 @@ def ring_rows_kernel(
         level_start = int(0)
         for ring in range(1, k + 1):
             level_end = size
-            for f in range(level_start, level_end):
-                span = ranges[found[p, f]]
-                for c in range(span[0], span[1]):
-                    t = corners[c] // 4
-                    if live[t] != wp.uint8(0) and tet_stamp[p, t] != tag:
-                        tet_stamp[p, t] = tag
-                        tet = tets[t]
-                        for m in range(4):
-                            b = tet[m]
-                            if node_stamp[p, b] != tag:
-                                node_stamp[p, b] = tag
-                                found[p, size] = b
-                                found_ring[p, size] = wp.uint8(ring)
-                                size += 1
+            size = search_level(ranges, corners, tets, live, p, tag, ring, level_start, level_end, size, node_stamp,
+                                tet_stamp, found, found_ring)  # fmt: skip
             level_start = level_end
         start = at
         if first.shape[0] > 0:
@@ -650,37 +677,28 @@ def node_levels_kernel(
     depth: int,
     tag: int,
     offset: int,
-    node_stamp: wp.array(dtype=wp.int32),
-    tet_stamp: wp.array(dtype=wp.int32),
-    order: wp.array(dtype=wp.int32),
+    node_stamp: wp.array2d(dtype=wp.int32),
+    tet_stamp: wp.array2d(dtype=wp.int32),
+    order: wp.array2d(dtype=wp.int32),
+    level: wp.array2d(dtype=wp.uint8),
     level_end: wp.array(dtype=wp.int32),
 ):
     """The nodes within ``depth`` edges of the ``sources`` (distinct) over the live tets, level by level
-    (one thread: a breadth-first search from all of them at once; ``incidence`` as in
-    :func:`ring_rows_kernel`, the stamps marked with ``tag``): ``order`` holds them by level, the sources
-    first, level ``d`` ending at ``level_end[d]`` (:func:`warpblob.sim._contact.ring_spread_after`)."""
+    (one thread: a breadth-first search from all of them at once, with row 0 of the stamps, marked
+    ``tag``): ``order[0]`` holds them by level (``level[0]`` each one's), the sources first, level ``d``
+    ending at ``level_end[d]`` (:func:`warpblob.sim._contact.ring_spread_after`)."""
     size = int(0)
     for i in range(sources.shape[0]):
         s = sources[i]
-        node_stamp[s] = tag
-        order[size] = s
+        node_stamp[0, s] = tag
+        order[0, size] = s
+        level[0, size] = wp.uint8(0)
         size += 1
     level_end[0] = size
     level_start = int(0)
     for d in range(1, depth + 1):
         end = size
-        for f in range(level_start, end):
-            span = ranges[order[f]]
-            for c in range(span[0], span[1]):
-                t = corners[c] // 4
-                if live[t] != wp.uint8(0) and tet_stamp[t] != tag:
-                    tet_stamp[t] = tag
-                    tet = tets[t]
-                    for m in range(4):
-                        b = tet[m]
-                        if node_stamp[b] != tag:
-                            node_stamp[b] = tag
-                            order[size] = b
-                            size += 1
+        size = search_level(ranges, corners, tets, live, 0, tag, d, level_start, end, size, node_stamp, tet_stamp,
+                            order, level)  # fmt: skip
         level_end[d] = size
         level_start = end
