@@ -620,8 +620,7 @@ def ring_rows_kernel(
     their rings to ``nodes``/``rings`` from ``first[i]`` where ``first`` is given, else from where the
     piece's earlier rows ended in its ``room`` entries from ``p * room`` (from the first row that does not
     fit on, its size negated in ``count`` and the row not written: the rows are then written again from
-    ``first``).
-    (:func:`warpblob.sim._contact._rings_near`: the rows of :func:`~warpblob.sim._contact._rings`.)"""
+    ``first``; :func:`warpblob.sim._contact._rings_near`)."""
     p = wp.tid() + offset
     lo = p * per_piece
     hi = wp.min(lo + per_piece, sources.shape[0])
