@@ -131,6 +131,24 @@ def cell_bounds_kernel(
     uppers[i] = hi
 
 
+@wp.func
+def mapping_tet(
+    cells: wp.array(dtype=wp.int32),
+    slot: int,
+    tets: wp.array(dtype=wp.vec4i),
+    x: wp.array(dtype=wp.vec3),
+    volume: wp.array(dtype=float),
+) -> int:
+    """The tet in slot ``slot`` of a locate tree's ``cells``, or -1 for an empty slot or a tet too flat at
+    ``x`` (below :data:`_FLAT` of its rest volume) to map points back (:func:`locate_points_kernel`)."""
+    t = cells[slot]
+    if t < 0:
+        return -1
+    if wp.determinant(shape_matrix(x, tets[t])) <= _FLAT * 6.0 * volume[t]:
+        return -1
+    return t
+
+
 @wp.kernel(enable_backward=False)
 def locate_points_kernel(
     trees: wp.array(dtype=wp.uint64),
@@ -186,13 +204,11 @@ def locate_points_kernel(
             continue
         q = wp.bvh_query_aabb(trees[tree], p, p)
         while wp.bvh_query_next(q, item):
-            t = cells[tree * split + item]
+            t = mapping_tet(cells, tree * split + item, tets, x, volume)
             if t < 0:
                 continue
             tet = tets[t]
             Ds = shape_matrix(x, tet)
-            if wp.determinant(Ds) <= _FLAT * 6.0 * volume[t]:
-                continue
             b = wp.inverse(Ds) * (p - x[tet[0]])
             inside = wp.min(wp.min(1.0 - b[0] - b[1] - b[2], b[0]), wp.min(b[1], b[2]))
             if inside >= _INSIDE and (inside > best_in or (inside == best_in and t < best)):
@@ -206,13 +222,11 @@ def locate_points_kernel(
             continue
         q = wp.bvh_query_aabb(trees[tree], p - wp.vec3(margin, margin, margin), p + wp.vec3(margin, margin, margin))
         while wp.bvh_query_next(q, item):
-            t = cells[tree * split + item]
+            t = mapping_tet(cells, tree * split + item, tets, x, volume)
             if t < 0:
                 continue
             tet = tets[t]
             Ds = shape_matrix(x, tet)
-            if wp.determinant(Ds) <= _FLAT * 6.0 * volume[t]:
-                continue
             x0 = x[tet[0]]
             x1 = x[tet[1]]
             x2 = x[tet[2]]
