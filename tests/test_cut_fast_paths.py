@@ -12,7 +12,7 @@ from warpblob.cut import _kernels as k
 from warpblob.cut._cut import _boxes, _planes
 from warpblob.mesh import TetStructure, box_tetmesh
 from warpblob.mesh import _structure as structure_module
-from warpblob.mesh._structure import _group_keys, _unique_first, _unique_inverse, vec6i
+from warpblob.mesh._structure import _unique_first, _unique_inverse, vec6i
 
 
 def _intersect(kernel, edges, positions, sweep, device):
@@ -119,25 +119,31 @@ def test_unique_inverse_is_numpys():
             assert np.ravel(x).dtype == y.dtype
 
 
-@pytest.mark.parametrize("spread", ["golden", "colliding"])
-def test_key_groups_are_numpys_partition(spread, monkeypatch):
-    """The face matching's groups: the partition of numpy's unique (groups in an order of their own) for keys
-    the packed sort takes, wide keys (the hashed sort) and, with a hash that sends every key to one value, the
-    fallback when keys share a hash."""
-    if spread == "colliding":
-        monkeypatch.setattr(structure_module, "_GOLDEN", 0)
+def test_key_groups_are_first_occurrence_order():
+    """A batch edit's face and edge matching's groups (one kernel thread through a hash table): per key its group, numbered by
+    first occurrence, as a numpy reference gives it; per group the first key from ``old`` on in it and how
+    many are; the table EMPTY again after each call, kept and grown between calls of several sizes, keys
+    wide and narrow, many sharing a slot (a table of 2-4 slots per key probes past taken slots)."""
     rng = np.random.default_rng(8)
-    for keys in (rng.integers(0, 1 << 40, 5000), rng.integers(0, 1 << 53, 20000), rng.integers(0, 1 << 62, 3000),
-                 np.zeros(0, np.int64), np.array([1 << 55])):  # fmt: skip
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (1, 1, 1)))
+    for keys, old in ((rng.integers(0, 1 << 40, 5000), 1000), (rng.integers(0, 1 << 53, 20000), 0),
+                      (rng.integers(0, 1 << 62, 3000), 3000), (rng.integers(0, 50, 400), 100),
+                      (np.zeros(0, np.int64), 0), (np.array([1 << 55]), 0)):  # fmt: skip
         keys = np.concatenate([keys, keys[::7], keys[: len(keys) // 3]]).astype(np.int64)
         rng.shuffle(keys)
-        count, groups = _group_keys(keys)
-        uniq, want = np.unique(keys, return_inverse=True)
-        assert count == len(uniq) and groups.shape == keys.shape
-        if len(keys):
-            assert groups.min() == 0 and groups.max() == count - 1
-        # one group per key value and one key value per group
-        np.testing.assert_array_equal(np.unique(np.stack([groups, want.ravel()], 1), axis=0).shape, (count, 2))
+        count, groups, first, uses = s._group_keys(keys, old, "test")
+        uniq, index, want = np.unique(keys, return_index=True, return_inverse=True)
+        rank = np.empty(len(uniq), dtype=np.int64)
+        rank[np.argsort(index)] = np.arange(len(uniq))  # groups by first occurrence
+        assert count == len(uniq)
+        np.testing.assert_array_equal(groups, rank[want.ravel()])
+        later = groups[old:]
+        np.testing.assert_array_equal(uses, np.bincount(later, minlength=count))
+        has = uses > 0
+        want_first = np.full(count, -1)
+        want_first[later[::-1]] = np.arange(len(later))[::-1]  # (the last write of a reversed scatter: the first)
+        np.testing.assert_array_equal(first[has], want_first[has])
+        assert np.all(s._key_tables["test"][0] == -1)
 
 
 @pytest.mark.parametrize("top", [1_000, 1 << 50])
@@ -208,26 +214,6 @@ def test_edges_used_flag_only_when_every_edge_is_used(device):
     s.remove_cell(0)
     states.append(s._edges_used)
     assert states == [True, False, True, False, False]
-
-
-def _cut_twice(mesh):
-    s = TetStructure.from_tetmesh(mesh)
-    cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.1, 0), 3.0), collect=False)
-    cut(s, SweepSurface.plane((0.5, 0.5, 0.49), (0, 0.1, 1), 3.0))
-    return s
-
-
-def test_edge_sort_beside_the_face_sort_changes_nothing(monkeypatch):
-    """A batch edit sorts a large batch's missing edges on a pool thread: every array of the structure is
-    the same as with the sort in turn."""
-    mesh = box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5))
-    monkeypatch.setattr(structure_module, "_SIDE_SORT", 1 << 40)
-    inline = _cut_twice(mesh)
-    monkeypatch.setattr(structure_module, "_SIDE_SORT", 1)
-    side = _cut_twice(mesh)
-    for kind, store in inline._stores.items():
-        for name in store.arrays:
-            np.testing.assert_array_equal(store[name], side._stores[kind][name], err_msg=f"{kind}.{name}")
 
 
 def test_rest_grid_finds_every_cell_a_box_meets():

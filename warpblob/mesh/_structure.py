@@ -54,7 +54,7 @@ import warp as wp
 
 from .._device import resolve_device
 from .._errors import WarpblobError
-from .._parallel import launch, submit, thread_count
+from .._parallel import launch, thread_count
 from .._stages import device_array, device_empty, host_array, mark_heads_kernel, rows_all, rows_any, shared_array
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
@@ -89,8 +89,6 @@ _GOLDEN_WP = wp.constant(wp.uint64(_GOLDEN))
 _CHEAP = 16384
 #: cells per range of the components' side-by-side union-find (fewer: one range, no second thread to wake)
 _COMPONENT_RANGE = 65536
-#: missing edges from which a batch edit sorts them on a pool thread beside the faces' sort
-_SIDE_SORT = 1 << 16
 #: a flood after a batch edit may queue up to 1/_FLOOD_SHARE of the cells before every cell is counted
 _FLOOD_SHARE = 16
 
@@ -712,11 +710,48 @@ def edge_pairs_kernel(cells: wp.array(dtype=wp.vec4i), uses: wp.array(dtype=wp.i
 
 
 @wp.kernel(enable_backward=False)
-def first_use_kernel(inverse: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32)):
-    """``first[g]``: the lowest ``i`` with ``inverse[i] == g`` (``first`` starts at a large value). Not
-    range-split: one CPU thread in order, or CUDA's atomics."""
-    i = wp.tid()
-    wp.atomic_min(first, inverse[i], i)
+def group_keys_kernel(
+    keys: wp.array(dtype=wp.int64),
+    old: int,
+    bits: int,
+    table: wp.array(dtype=wp.int64),
+    table_group: wp.array(dtype=wp.int32),
+    slot_of: wp.array(dtype=wp.int32),
+    inverse: wp.array(dtype=wp.int32),
+    first: wp.array(dtype=wp.int32),
+    uses: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+):
+    """Groups of equal non-negative keys, numbered in the order of their first occurrence (one thread, in
+    order: deterministic), through an open-addressing table of ``2**bits`` slots (every slot EMPTY on entry
+    and again on exit). Per key its group (``inverse``); per group the first of the keys from ``old`` on
+    that is in it (``first``, counted from ``old``; a large value where none) and how many of those are
+    (``uses``); ``count[0]`` the groups. A batch edit's face matching: the removed cells' faces, then the
+    new cells' (a sort of the keys costs 3-5x this), and its missing edges."""
+    mask = (1 << bits) - 1
+    n = keys.shape[0]
+    g = int(0)
+    for i in range(n):
+        key = keys[i]
+        s = _edge_slot(key, bits)
+        while table[s] != key and table[s] != _EMPTY_WP:
+            s = (s + 1) & mask
+        if table[s] != key:
+            table[s] = key
+            table_group[s] = g
+            first[g] = 2147483647
+            uses[g] = 0
+            g += 1
+        h = table_group[s]
+        inverse[i] = h
+        slot_of[i] = s
+        if i >= old:
+            if uses[h] == 0:
+                first[h] = i - old
+            uses[h] = uses[h] + 1
+    for i in range(n):
+        table[slot_of[i]] = _EMPTY_WP
+    count[0] = g
 
 
 @wp.kernel(enable_backward=False)
@@ -921,36 +956,6 @@ def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     np.not_equal(k[1:], k[:-1], out=heads[1:])
     inverse[order] = np.cumsum(heads) - 1
     return k[heads], inverse
-
-
-def _group_keys(keys: np.ndarray) -> tuple[int, np.ndarray]:
-    """Groups of equal int64 keys, in an order of their own: (count, (n,) int64 group of each key).
-    :func:`_unique_inverse`'s where its packed sort fits (the groups then in key order), else a value
-    sort of ``hash << b | position`` with the hash in the bits left (Fibonacci hashing), checked for keys
-    that share a hash (then one argsort, as :func:`_unique_inverse`): a 53-bit face key and 19 bits of
-    position do not fit 63 bits, and the argsort costs 3x the value sort (a cut's face matching at 1M
-    tets)."""
-    keys = np.asarray(keys, dtype=np.int64).ravel()
-    n = len(keys)
-    bits = max(int(n - 1).bit_length(), 1)
-    if n == 0 or int(keys.min()) < 0 or int(keys.max()).bit_length() + bits <= 62 or bits > 40:
-        uniq, inverse = _unique_inverse(keys)
-        return len(uniq), inverse
-    spread = (keys.view(np.uint64) * np.uint64(_GOLDEN)) >> np.uint64(64 - (62 - bits))
-    packed = np.sort((spread.view(np.int64) << bits) | np.arange(n, dtype=np.int64))
-    pos = packed & ((1 << bits) - 1)
-    h = packed >> bits
-    k = keys[pos]
-    same_hash = h[1:] == h[:-1]
-    if np.any(same_hash & (k[1:] != k[:-1])):  # two keys share a hash (rare): sort the keys themselves
-        uniq, inverse = _unique_inverse(keys)
-        return len(uniq), inverse
-    heads = np.empty(n, dtype=bool)
-    heads[0] = True
-    np.logical_not(same_hash, out=heads[1:])
-    inverse = np.empty(n, dtype=np.int64)
-    inverse[pos] = np.cumsum(heads) - 1
-    return int(np.count_nonzero(heads)), inverse
 
 
 def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> np.ndarray:
@@ -1361,6 +1366,8 @@ class TetStructure:
         self._table_bits = 4
         self._table_used = 0  # live keys plus deleted slots
         self._table_node_bound = 0  # every node of a key in the table is below this (a node above has no edge)
+        # a batch edit's hash tables of faces and edges (:meth:`_group_keys`), EMPTY between edits: (keys, groups)
+        self._key_tables: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         # every edge slot is used by a live cell (after a build or a compaction, until an edge is inserted
         # alone or a cell removed or changed): lets a cut skip its pass marking the edges in use
         self._edges_used = False
@@ -2021,8 +2028,8 @@ class TetStructure:
 
         Faces of the new cells that coincide with faces of the removed cells
         are reused (their cell slots re-linked), the others are created
-        (numbered in the order of :func:`_group_keys`' groups of their keys),
-        and so are missing edges (in key order; an edge at a node newer than
+        (numbered in the order their keys first occur among the new cells' faces),
+        and so are missing edges (in the order of their first use; an edge at a node newer than
         every edge is not looked up);
         a kernel per new cell validates it, keys its faces and finds its
         edges in the table; removed cells are pending until
@@ -2086,17 +2093,7 @@ class TetStructure:
             c = int(np.flatnonzero(bad)[0])
             raise WarpblobError(f"TetStructure.replace_cells: new cell {c} repeats a node: {new[c].tolist()}")
 
-        # the missing edges' keys sorted on a pool thread while the faces are sorted here (numpy's sorts
-        # release the GIL; a small batch is sorted in turn: waking a thread would cost more)
         missing = np.flatnonzero(found < 0)
-        edge_sort = None
-        if missing.size:
-            def sort_edges():
-                # (max << 32 | min) as max * N + min: the same order, narrow enough for the packed sort
-                mk = edge_keys[missing]
-                return _unique_first((mk >> 32) * max(N, 1) + (mk & 0xFFFFFFFF), len(missing))
-
-            edge_sort = submit(sort_edges, 1)[0] if len(missing) >= _SIDE_SORT else sort_edges
         if remove.size:  # the faces of the removed cells, ascending (marks: no sort)
             marked = np.zeros(faces.count, dtype=bool)
             marked[cells["faces"][remove].ravel()] = True
@@ -2118,14 +2115,12 @@ class TetStructure:
             keys = np.concatenate([old_keys, new_keys])
         else:
             keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new[:, TET_FACES].reshape(-1, 3)]), N)
-        groups, inverse = _group_keys(keys)
-        inverse = inverse.astype(np.int32)
+        groups, inverse, first_use, uses = self._group_keys(keys, len(old_faces), "face")
         face_of = np.full(groups, -1, dtype=np.int64)
         face_of[inverse[: len(old_faces)]] = old_faces
         taken = np.zeros(groups, dtype=np.int32)
         taken[inverse[: len(old_faces)]] = (slots[:, 0] >= 0).astype(np.int32) + (slots[:, 1] >= 0)
         inv_new = inverse[len(old_faces) :]
-        uses = np.bincount(inv_new, minlength=groups)
         if np.any(taken + uses > 2):
             u = int(np.flatnonzero(taken + uses > 2)[0])
             f = new[np.flatnonzero(inv_new == u)[0] // 4][TET_FACES[np.flatnonzero(inv_new == u)[0] % 4]].tolist()
@@ -2140,25 +2135,21 @@ class TetStructure:
         if remove.size:
             self._emit("cell", "remove", remove.astype(np.int32))
 
-        # edges: the new cells' six, found in the table or appended (numbered in key order, oriented by first use)
+        # edges: the new cells' six, found in the table or appended (numbered in the order they are first used,
+        # oriented by that use)
         if missing.size:
-            mk_uniq, first, mk_inv = edge_sort() if callable(edge_sort) else edge_sort.result()
-            pairs = np.empty((len(first), 2), dtype=np.int32)
-            launch(edge_pairs_kernel, len(first),
+            count, mk_inv, first, _ = self._group_keys(edge_keys[missing], 0, "edge")
+            pairs = np.empty((count, 2), dtype=np.int32)
+            launch(edge_pairs_kernel, count,
                    [new_wp, _shared(missing[first].astype(np.int32))],
                    [host_array(pairs, wp.vec2i)], cpu, min_chunk=_CHEAP)  # fmt: skip
-            edge_ids = st["edge"].extend(len(mk_uniq), nodes=pairs)
+            edge_ids = st["edge"].extend(count, nodes=pairs)
             found[missing] = edge_ids[mk_inv]
             self._table_add(edge_ids)
             self._emit("edge", "insert", edge_ids)
         cell_edges = found.reshape(C, 6)
 
         # faces: reuse or create (numbered in the order of their groups, oriented by the first new cell that has it)
-        first_use = np.full(groups, np.iinfo(np.int32).max, dtype=np.int32)
-        if C:
-            wp.launch(first_use_kernel, dim=4 * C, device=cpu,
-                      inputs=[host_array(inv_new, wp.int32),
-                              host_array(first_use, wp.int32)])  # fmt: skip
         create = np.flatnonzero(face_of < 0)
         if create.size:
             use = np.ascontiguousarray(first_use[create])  # index into the (C, 4) faces of the new cells
@@ -2194,6 +2185,30 @@ class TetStructure:
         self._links_stale = True
         self._edges_used = edges_used
         return cell_ids
+
+    def _group_keys(self, keys: np.ndarray, old: int, table: str) -> tuple:
+        """Groups of equal keys (``keys`` (n,) int64, non-negative; a batch edit's faces: the ``old`` faces of
+        removed cells, then the new cells' four each; its missing edges), numbered in order of first
+        occurrence (:func:`group_keys_kernel`): (count, (n,) int32 group of each key, per group the first
+        key from ``old`` on in it (counted from ``old``) and how many such keys it has). The hash table
+        (``table``: its name; 2-4 slots per key) is kept between edits, EMPTY."""
+        n = len(keys)
+        bits = max(int(2 * n - 1).bit_length(), 4)
+        if table not in self._key_tables or len(self._key_tables[table][0]) < 1 << bits:
+            self._key_tables[table] = (np.full(1 << bits, EMPTY, dtype=np.int64), np.empty(1 << bits, np.int32))
+        table, table_group = self._key_tables[table]
+        bits = int(len(table) - 1).bit_length()
+        inverse, slot_of = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+        first, uses, count = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32), np.zeros(1, dtype=np.int32)
+        if n:
+            wp.launch(group_keys_kernel, dim=1, device="cpu",
+                      inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old), bits,
+                              *[host_array(a, t) for a, t in ((table, wp.int64), (table_group, wp.int32),
+                                                              (slot_of, wp.int32), (inverse, wp.int32),
+                                                              (first, wp.int32), (uses, wp.int32),
+                                                              (count, wp.int32))]])  # fmt: skip
+        groups = int(count[0])
+        return groups, inverse, first[:groups], uses[:groups]
 
     def _cells_with_parent(self) -> np.ndarray:
         """The cells (live or not) that are pieces of a progressive-cut record, ascending int32: kept by the
