@@ -624,6 +624,45 @@ def _fresh_table(s):
     return fresh, _table_contents(fresh)
 
 
+def test_batch_edges_reuse_deleted_slots_and_grow_the_table():
+    """A batch edit's new edges go into the lookup table as they are numbered: after a compaction left
+    deleted slots, the new edges of the next batch (some of whose keys probe past a deleted slot) are all
+    found under their indices, nothing else is, and the slots counted as used grow by at most the new edges;
+    a batch with more new edges than the table has room for builds it anew, larger, with every edge in it."""
+    s = TetStructure.from_tetmesh(grid_mesh(3))
+    rng = np.random.default_rng(2)
+    for _ in range(3):  # split a random interior edge, compact (its slot is marked deleted), again
+        e = next(e for e in rng.permutation(s.ids("edge")) if s.faces_of_edge(e).size == 6)
+        a, b = s.edge_nodes[e].tolist()
+        ring = np.flatnonzero(np.any(s.cell_nodes == a, axis=1) & np.any(s.cell_nodes == b, axis=1) & s.cell_alive)
+        mid = s.insert_nodes(s.node_rest[[a, b]].mean(axis=0)[None])
+        new = []
+        for c in ring.tolist():
+            for end in (a, b):
+                t = s.cell_nodes[c].copy()
+                t[t == end] = int(mid[0])
+                new.append(t)
+        used, edges = s._table_used, len(s.edge_nodes)
+        s.replace_cells(ring, np.array(new), 0)
+        assert _table_contents(s) == {**_own_table(s)}  # (the split edge stays until the compaction)
+        assert s._table_used - used <= len(s.edge_nodes) - edges
+        s.collect_garbage()
+        assert (s._table_keys == -2).any()  # deleted slots for the next batch to pass or reuse
+        assert _table_contents(s) == _own_table(s)
+    s.check()
+    # a batch larger than the table's room: 200 separate tets on new nodes
+    size = len(s._table_keys)
+    nodes = s.insert_nodes(rng.uniform(5, 6, (800, 3)))
+    cells = nodes.reshape(-1, 4)
+    p = s.node_rest[cells]
+    flip = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) < 0
+    cells[flip] = cells[flip][:, [1, 0, 2, 3]]
+    s.replace_cells(np.zeros(0, np.int64), cells, 0)
+    assert len(s._table_keys) > size
+    assert _table_contents(s) == _own_table(s)
+    s.check()
+
+
 def test_compaction_keeps_the_lookup_table_when_no_node_goes():
     """A compaction that removes edges but keeps every node (a cut's) follows the table in place: the
     same arrays, every live edge under its new index, removed ones not found, the same pairs as a table

@@ -346,6 +346,48 @@ def insert_edge_ids_kernel(
 
 
 @wp.kernel(enable_backward=False)
+def add_edge_keys_kernel(
+    edge_keys: wp.array(dtype=wp.int64),
+    first_id: int,
+    bits: int,
+    keys: wp.array(dtype=wp.int64),
+    values: wp.array(dtype=wp.int32),
+    edge_of: wp.array(dtype=wp.int32),
+    first: wp.array(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+):
+    """A batch edit's missing edges (``edge_keys``, none in the table yet, each as often as new cells use it)
+    put in the lookup table as they come (one thread, in order): a key met first gets edge ``first_id`` + the
+    edges before it (in the first deleted slot its probe passed, else the empty one that ended it), a key
+    met again the edge it got. Per key its edge (``edge_of``); per new edge the first key of it
+    (``first``); ``count``: the new edges, and the empty slots they took."""
+    n = edge_keys.shape[0]
+    mask = (1 << bits) - 1
+    g = int(0)
+    fresh = int(0)
+    for i in range(n):
+        key = edge_keys[i]
+        s = _edge_slot(key, bits)
+        free = int(-1)
+        while keys[s] != key and keys[s] != _EMPTY_WP:
+            if keys[s] == _DELETED_WP and free < 0:
+                free = s
+            s = (s + 1) & mask
+        if keys[s] != key:
+            if free >= 0:
+                s = free
+            else:
+                fresh += 1
+            keys[s] = key
+            values[s] = first_id + g
+            first[g] = i
+            g += 1
+        edge_of[i] = values[s]
+    count[0] = g
+    count[1] = fresh
+
+
+@wp.kernel(enable_backward=False)
 def remap_table_kernel(edge_map: wp.array(dtype=wp.int32), offset: int, keys: wp.array(dtype=wp.int64),
                        values: wp.array(dtype=wp.int32)):  # fmt: skip
     """A compaction that kept every node's index, in the edge table: each used slot's edge through
@@ -663,7 +705,7 @@ def new_cells_kernel(
 ):
     """Per new cell of a batch edit: 1 if a node is missing or dead, 2 if a node repeats (else 0); the keys
     of its four faces (``n`` the key base, 0: none); its six edges found in the table (-1 missing) and the
-    key ``max * nodes + min`` of each missing one (-1 found)."""
+    table's key of each missing one (:func:`edge_key`; -1 found)."""
     c = wp.tid() + offset
     t = cells[c]
     count = node_alive.shape[0]
@@ -694,7 +736,7 @@ def new_cells_kernel(
             if wp.max(a, b) < bound:  # a node at or above the bound has no edge yet
                 e = edge_table_find(table_keys, table_values, bits, a, b)
             if e < 0:
-                key = wp.int64(wp.max(a, b)) * wp.int64(count) + wp.int64(wp.min(a, b))
+                key = edge_key(a, b)
         edges[6 * c + j] = e
         edge_keys[6 * c + j] = key
 
@@ -715,42 +757,43 @@ def group_keys_kernel(
     old: int,
     bits: int,
     table: wp.array(dtype=wp.int64),
-    table_group: wp.array(dtype=wp.int32),
-    slot_of: wp.array(dtype=wp.int32),
     inverse: wp.array(dtype=wp.int32),
     first: wp.array(dtype=wp.int32),
     uses: wp.array(dtype=wp.int32),
+    group_slot: wp.array(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
 ):
     """Groups of equal non-negative keys, numbered in the order of their first occurrence (one thread, in
-    order: deterministic), through an open-addressing table of ``2**bits`` slots (every slot EMPTY on entry
-    and again on exit). Per key its group (``inverse``); per group the first of the keys from ``old`` on
-    that is in it (``first``, counted from ``old``; a large value where none) and how many of those are
-    (``uses``); ``count[0]`` the groups. A batch edit's face matching: the removed cells' faces, then the
-    new cells' (a sort of the keys costs 3-5x this), and its missing edges."""
-    mask = (1 << bits) - 1
+    order: deterministic), through an open-addressing table of ``2**bits`` slots, each a key and its group
+    side by side (``table`` flat: one cache line a probe; every key EMPTY on entry and again on exit). Per
+    key its group (``inverse``); per group the first of the keys from ``old`` on that is in it (``first``,
+    counted from ``old``; a large value where none), how many of those are (``uses``) and its slot;
+    ``count[0]`` the groups. A batch edit's face matching (the removed cells' faces, then the new cells'; a
+    sort of the keys costs 2-3x this) and its missing edges. (Cut in two parts by hash, a thread each, it
+    was no faster: the time goes to each key's random probe, not to the loop.)"""
     n = keys.shape[0]
+    mask = (1 << bits) - 1
     g = int(0)
     for i in range(n):
         key = keys[i]
         s = _edge_slot(key, bits)
-        while table[s] != key and table[s] != _EMPTY_WP:
+        while table[2 * s] != key and table[2 * s] != _EMPTY_WP:
             s = (s + 1) & mask
-        if table[s] != key:
-            table[s] = key
-            table_group[s] = g
+        if table[2 * s] != key:
+            table[2 * s] = key
+            table[2 * s + 1] = wp.int64(g)
             first[g] = 2147483647
             uses[g] = 0
+            group_slot[g] = s
             g += 1
-        h = table_group[s]
+        h = int(table[2 * s + 1])
         inverse[i] = h
-        slot_of[i] = s
         if i >= old:
             if uses[h] == 0:
                 first[h] = i - old
             uses[h] = uses[h] + 1
-    for i in range(n):
-        table[slot_of[i]] = _EMPTY_WP
+    for j in range(g):
+        table[2 * group_slot[j]] = _EMPTY_WP
     count[0] = g
 
 
@@ -956,6 +999,37 @@ def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     np.not_equal(k[1:], k[:-1], out=heads[1:])
     inverse[order] = np.cumsum(heads) - 1
     return k[heads], inverse
+
+
+#: hash tables of :func:`group_keys_kernel` ((2^b, 2) int64: every key EMPTY, and its group), kept between
+#: batch edits of any structure: a big table's fresh pages cost more than the grouping itself
+_KEY_TABLES: list[np.ndarray] = []
+
+
+def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
+    """Groups of equal keys (``keys`` (n,) int64, non-negative; a batch edit's faces: the ``old`` faces of
+    removed cells, then the new cells' four each; its missing edges), numbered in order of first occurrence
+    (:func:`group_keys_kernel`, one CPU thread): (count, (n,) int32 group of each key, per group the first key
+    from ``old`` on in it (counted from ``old``) and how many such keys it has). The hash table (1.5-3 slots
+    a key) comes from :data:`_KEY_TABLES` and goes back to it EMPTY."""
+    n = len(keys)
+    bits = max(int(n + n // 2).bit_length(), 4)
+    try:
+        table = _KEY_TABLES.pop()
+    except IndexError:  # (none free: this thread's first edit, or another thread's edit holds it)
+        table = np.zeros((0, 2), dtype=np.int64)
+    if len(table) < 1 << bits:
+        table = np.full((1 << bits, 2), EMPTY, dtype=np.int64)
+    inverse, first, uses, group_slot = (np.empty(n, dtype=np.int32) for _ in range(4))
+    count = np.zeros(1, dtype=np.int32)
+    if n:
+        wp.launch(group_keys_kernel, dim=1, device="cpu",
+                  inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old),
+                          int(len(table) - 1).bit_length(), host_array(table.reshape(-1), wp.int64),
+                          *[host_array(a, wp.int32) for a in (inverse, first, uses, group_slot, count)]])  # fmt: skip
+    _KEY_TABLES.append(table)
+    groups = int(count[0])
+    return groups, inverse, first[:groups], uses[:groups]
 
 
 def _connected(count: int, a: np.ndarray, b: np.ndarray, alive: np.ndarray) -> np.ndarray:
@@ -1366,8 +1440,6 @@ class TetStructure:
         self._table_bits = 4
         self._table_used = 0  # live keys plus deleted slots
         self._table_node_bound = 0  # every node of a key in the table is below this (a node above has no edge)
-        # a batch edit's hash tables of faces and edges (:meth:`_group_keys`), EMPTY between edits: (keys, groups)
-        self._key_tables: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         # every edge slot is used by a live cell (after a build or a compaction, until an edge is inserted
         # alone or a cell removed or changed): lets a cut skip its pass marking the edges in use
         self._edges_used = False
@@ -1497,13 +1569,16 @@ class TetStructure:
 
         self._build_table(dev, edge_nodes, edge_alive)
 
-    def _build_table(self, dev, edge_nodes: wp.array | None = None, edge_alive: wp.array | None = None) -> None:
+    def _build_table(self, dev, edge_nodes: wp.array | None = None, edge_alive: wp.array | None = None,
+                     extra: int = 0) -> None:  # fmt: skip
+        """The lookup table built anew from the live edges, sized for ``extra`` more to come."""
         edges = self._stores["edge"]
         if edge_nodes is None:
             edge_nodes = wp.array(edges["nodes"], dtype=wp.vec2i, device=dev)
             edge_alive = wp.array(edges["alive"].view(np.uint8), dtype=wp.uint8, device=dev)
         live = int(np.count_nonzero(edges["alive"]))
-        self._table_keys, self._table_values, self._table_bits = _build_table(edge_nodes, edge_alive, live, dev)
+        self._table_keys, self._table_values, self._table_bits = _build_table(edge_nodes, edge_alive, live + extra,
+                                                                              dev)  # fmt: skip
         self._table_used = live
         nodes = edges["nodes"]
         self._table_node_bound = int(nodes.max()) + 1 if len(nodes) else 0
@@ -2115,7 +2190,7 @@ class TetStructure:
             keys = np.concatenate([old_keys, new_keys])
         else:
             keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new[:, TET_FACES].reshape(-1, 3)]), N)
-        groups, inverse, first_use, uses = self._group_keys(keys, len(old_faces), "face")
+        groups, inverse, first_use, uses = _group_keys(keys, len(old_faces))
         face_of = np.full(groups, -1, dtype=np.int64)
         face_of[inverse[: len(old_faces)]] = old_faces
         taken = np.zeros(groups, dtype=np.int32)
@@ -2136,16 +2211,15 @@ class TetStructure:
             self._emit("cell", "remove", remove.astype(np.int32))
 
         # edges: the new cells' six, found in the table or appended (numbered in the order they are first used,
-        # oriented by that use)
+        # oriented by that use), put in the lookup table as they are numbered
         if missing.size:
-            count, mk_inv, first, _ = self._group_keys(edge_keys[missing], 0, "edge")
+            count, edge_of, first = self._add_edge_keys(edge_keys[missing])
             pairs = np.empty((count, 2), dtype=np.int32)
             launch(edge_pairs_kernel, count,
                    [new_wp, _shared(missing[first].astype(np.int32))],
                    [host_array(pairs, wp.vec2i)], cpu, min_chunk=_CHEAP)  # fmt: skip
             edge_ids = st["edge"].extend(count, nodes=pairs)
-            found[missing] = edge_ids[mk_inv]
-            self._table_add(edge_ids)
+            found[missing] = edge_of
             self._emit("edge", "insert", edge_ids)
         cell_edges = found.reshape(C, 6)
 
@@ -2186,30 +2260,6 @@ class TetStructure:
         self._edges_used = edges_used
         return cell_ids
 
-    def _group_keys(self, keys: np.ndarray, old: int, table: str) -> tuple:
-        """Groups of equal keys (``keys`` (n,) int64, non-negative; a batch edit's faces: the ``old`` faces of
-        removed cells, then the new cells' four each; its missing edges), numbered in order of first
-        occurrence (:func:`group_keys_kernel`): (count, (n,) int32 group of each key, per group the first
-        key from ``old`` on in it (counted from ``old``) and how many such keys it has). The hash table
-        (``table``: its name; 2-4 slots per key) is kept between edits, EMPTY."""
-        n = len(keys)
-        bits = max(int(2 * n - 1).bit_length(), 4)
-        if table not in self._key_tables or len(self._key_tables[table][0]) < 1 << bits:
-            self._key_tables[table] = (np.full(1 << bits, EMPTY, dtype=np.int64), np.empty(1 << bits, np.int32))
-        table, table_group = self._key_tables[table]
-        bits = int(len(table) - 1).bit_length()
-        inverse, slot_of = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
-        first, uses, count = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32), np.zeros(1, dtype=np.int32)
-        if n:
-            wp.launch(group_keys_kernel, dim=1, device="cpu",
-                      inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old), bits,
-                              *[host_array(a, t) for a, t in ((table, wp.int64), (table_group, wp.int32),
-                                                              (slot_of, wp.int32), (inverse, wp.int32),
-                                                              (first, wp.int32), (uses, wp.int32),
-                                                              (count, wp.int32))]])  # fmt: skip
-        groups = int(count[0])
-        return groups, inverse, first[:groups], uses[:groups]
-
     def _cells_with_parent(self) -> np.ndarray:
         """The cells (live or not) that are pieces of a progressive-cut record, ascending int32: kept by the
         edits that make them (a cut's :meth:`replace_cells`), found by one pass over the cells after a
@@ -2228,26 +2278,23 @@ class TetStructure:
         store.arrays["alive"][count : store.count] = False
         store.count = min(store.count, count)
 
-    def _table_add(self, edge_ids: np.ndarray) -> None:
-        """Put new edges in the lookup table (one kernel; the table grows by a rebuild when too full)."""
-        if 2 * (self._table_used + len(edge_ids)) > len(self._table_keys):
-            self._build_table(wp.get_device("cpu"))
-            return
-        if len(edge_ids):
-            ids = np.asarray(edge_ids, dtype=np.int64)
-            nodes = self._stores["edge"]["nodes"]
-            if ids[-1] - ids[0] == len(ids) - 1:  # a run (a batch just appended): a slice, no gather
-                top = int(nodes[ids[0] : ids[-1] + 1].max()) + 1
-            else:
-                top = int(nodes[ids].max()) + 1
-            self._table_node_bound = max(self._table_node_bound, top)
-        # the kernel writes the table's own memory (no copy either way)
-        cpu = wp.get_device("cpu")
-        keys = host_array(self._table_keys, wp.int64)
-        values = host_array(self._table_values, wp.int32)
-        nodes = host_array(self._stores["edge"]["nodes"], wp.vec2i)
-        _insert_edges(nodes, np.asarray(edge_ids, dtype=np.int32), self._table_bits, keys, values, cpu)
-        self._table_used += len(edge_ids)
+    def _add_edge_keys(self, keys: np.ndarray) -> tuple:
+        """Number a batch edit's missing edges from the next edge slot and put them in the lookup table
+        (:func:`add_edge_keys_kernel`; ``keys`` (k,) int64 ``max << 32 | min``, none in the table, each once
+        per use): (new edges, (k,) int32 edge of each key, per new edge the index of its first key). The edge
+        store is the caller's to extend by them, at once."""
+        if 2 * (self._table_used + len(keys)) > len(self._table_keys):  # (room for every key: a bound)
+            self._build_table(wp.get_device("cpu"), extra=len(keys))
+        edge_of, first = np.empty(len(keys), dtype=np.int32), np.empty(len(keys), dtype=np.int32)
+        count = np.zeros(2, dtype=np.int32)
+        wp.launch(add_edge_keys_kernel, dim=1, device="cpu",
+                  inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64),
+                          self._stores["edge"].count, self._table_bits, host_array(self._table_keys, wp.int64),
+                          host_array(self._table_values, wp.int32), host_array(edge_of, wp.int32),
+                          host_array(first, wp.int32), host_array(count, wp.int32)])  # fmt: skip
+        self._table_used += int(count[1])
+        self._table_node_bound = max(self._table_node_bound, int(keys.max() >> 32) + 1)
+        return int(count[0]), edge_of, first[: int(count[0])]
 
     def components(self) -> np.ndarray:
         """(C,) int32 connected piece of every cell slot (cells joined through shared faces), -1 for dead cells.
