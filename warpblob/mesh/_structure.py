@@ -1011,7 +1011,8 @@ def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
     removed cells, then the new cells' four each; its missing edges), numbered in order of first occurrence
     (:func:`group_keys_kernel`, one CPU thread): (count, (n,) int32 group of each key, per group the first key
     from ``old`` on in it (counted from ``old``) and how many such keys it has). The hash table (1.5-3 slots
-    a key) comes from :data:`_KEY_TABLES` and goes back to it EMPTY."""
+    a key; of a larger one an earlier, larger batch left, only that many slots at its start, so that a small
+    batch's probes stay in cache) comes from :data:`_KEY_TABLES` and goes back to it EMPTY."""
     n = len(keys)
     bits = max(int(n + n // 2).bit_length(), 4)
     try:
@@ -1024,8 +1025,8 @@ def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
     count = np.zeros(1, dtype=np.int32)
     if n:
         wp.launch(group_keys_kernel, dim=1, device="cpu",
-                  inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old),
-                          int(len(table) - 1).bit_length(), host_array(table.reshape(-1), wp.int64),
+                  inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old), bits,
+                          host_array(table.reshape(-1), wp.int64),
                           *[host_array(a, wp.int32) for a in (inverse, first, uses, group_slot, count)]])  # fmt: skip
     _KEY_TABLES.append(table)
     groups = int(count[0])
