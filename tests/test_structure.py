@@ -624,6 +624,22 @@ def _fresh_table(s):
     return fresh, _table_contents(fresh)
 
 
+def _split_edge(s, e):
+    """Split edge ``e`` at its midpoint in one batch edit (each cell round it into two); its two nodes."""
+    a, b = s.edge_nodes[e].tolist()
+    ring = np.flatnonzero(np.any(s.cell_nodes == a, axis=1) & np.any(s.cell_nodes == b, axis=1) & s.cell_alive)
+    rest, position = s.node_rest[[a, b]].mean(axis=0), s.node_position[[a, b]].mean(axis=0)
+    mid = s.insert_nodes(rest[None], position[None])
+    new = []
+    for c in ring.tolist():
+        for end in (a, b):
+            t = s.cell_nodes[c].copy()
+            t[t == end] = int(mid[0])
+            new.append(t)
+    s.replace_cells(ring, np.array(new), 0)
+    return a, b
+
+
 def test_batch_edges_reuse_deleted_slots_and_grow_the_table():
     """A batch edit's new edges go into the lookup table as they are numbered: after a compaction left
     deleted slots, the new edges of the next batch (some of whose keys probe past a deleted slot) are all
@@ -633,18 +649,9 @@ def test_batch_edges_reuse_deleted_slots_and_grow_the_table():
     rng = np.random.default_rng(2)
     for _ in range(3):  # split a random interior edge, compact (its slot is marked deleted), again
         e = next(e for e in rng.permutation(s.ids("edge")) if s.faces_of_edge(e).size == 6)
-        a, b = s.edge_nodes[e].tolist()
-        ring = np.flatnonzero(np.any(s.cell_nodes == a, axis=1) & np.any(s.cell_nodes == b, axis=1) & s.cell_alive)
-        mid = s.insert_nodes(s.node_rest[[a, b]].mean(axis=0)[None])
-        new = []
-        for c in ring.tolist():
-            for end in (a, b):
-                t = s.cell_nodes[c].copy()
-                t[t == end] = int(mid[0])
-                new.append(t)
         used, edges = s._table_used, len(s.edge_nodes)
-        s.replace_cells(ring, np.array(new), 0)
-        assert _table_contents(s) == {**_own_table(s)}  # (the split edge stays until the compaction)
+        _split_edge(s, e)
+        assert _table_contents(s) == _own_table(s)  # (the split edge stays until the compaction)
         assert s._table_used - used <= len(s.edge_nodes) - edges
         s.collect_garbage()
         assert (s._table_keys == -2).any()  # deleted slots for the next batch to pass or reuse
@@ -670,17 +677,7 @@ def test_compaction_keeps_the_lookup_table_when_no_node_goes():
     s = TetStructure.from_tetmesh(grid_mesh(3))
     # the cells at one interior edge's nodes go, then cells that split it come back (every node stays used)
     e = next(e for e in s.ids("edge") if s.faces_of_edge(e).size == 6)  # an interior edge
-    a, b = s.edge_nodes[e].tolist()
-    ring = np.flatnonzero(np.any(s.cell_nodes == a, axis=1) & np.any(s.cell_nodes == b, axis=1) & s.cell_alive)
-    rest, position = s.node_rest[[a, b]].mean(axis=0), s.node_position[[a, b]].mean(axis=0)
-    mid = s.insert_nodes(rest[None], position[None])
-    new = []
-    for c in ring.tolist():
-        for end in (a, b):
-            t = s.cell_nodes[c].copy()
-            t[t == end] = int(mid[0])
-            new.append(t)
-    s.replace_cells(ring, np.array(new), 0)
+    a, b = _split_edge(s, e)
     keys, values = s._table_keys, s._table_values
     old_pairs = {tuple(sorted(s.edge_nodes[i].tolist())) for i in s.ids("edge")}
     maps = s.collect_garbage()
