@@ -7,6 +7,7 @@ import warp as wp
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from warpblob._errors import WarpblobError
 from warpblob.cut import SweepSurface, cut
 from warpblob.cut import _kernels as k
 from warpblob.cut._cut import _boxes, _planes
@@ -213,6 +214,58 @@ def test_edges_used_flag_only_when_every_edge_is_used(device):
     s.remove_cell(0)
     states.append(s._edges_used)
     assert states == [True, False, True, False, False]
+
+
+def _cut_twice(mesh):
+    s = TetStructure.from_tetmesh(mesh)
+    cut(s, SweepSurface.plane((0.51, 0.5, 0.5), (1, 0.1, 0), 3.0), collect=False)
+    cut(s, SweepSurface.plane((0.5, 0.5, 0.49), (0, 0.1, 1), 3.0))
+    return s
+
+
+def test_edges_beside_the_face_matching_change_nothing(monkeypatch):
+    """A batch edit puts a large batch's new edges in the lookup table on a pool thread while it matches the
+    faces: every array of the structure, and its table, the same as in turn."""
+    mesh = box_tetmesh((0, 0, 0), (1, 1, 1), (5, 5, 5))
+    monkeypatch.setattr(structure_module, "_SIDE_EDGES", 1 << 40)
+    inline = _cut_twice(mesh)
+    monkeypatch.setattr(structure_module, "_SIDE_EDGES", 1)
+    side = _cut_twice(mesh)
+    for kind, store in inline._stores.items():
+        for name in store.arrays:
+            np.testing.assert_array_equal(store[name], side._stores[kind][name], err_msg=f"{kind}.{name}")
+    for name in ("_table_keys", "_table_values", "_table_bits", "_table_used", "_table_node_bound"):
+        np.testing.assert_array_equal(getattr(inline, name), getattr(side, name), err_msg=name)
+
+
+@pytest.mark.parametrize("side_edges", [1, 1 << 40])
+def test_a_refused_batch_leaves_the_edge_table_as_it_was(side_edges, monkeypatch):
+    """A batch whose new cells would give a face three cells is refused after its new edges went into the
+    lookup table beside the face matching: the table then finds exactly the edges there were (none of the
+    refused batch's), and a valid batch after it works."""
+    monkeypatch.setattr(structure_module, "_SIDE_EDGES", side_edges)
+    s = TetStructure.from_tetmesh(box_tetmesh((0, 0, 0), (1, 1, 1), (2, 2, 2)))
+    counts = {kind: store.count for kind, store in s._stores.items()}
+    bound = s._table_node_bound
+    # three new cells on new nodes round one new face (a, b, p): it would have three cells
+    a, b = s.edge_nodes[0].tolist()
+    p, q1, q2, q3 = s.insert_nodes(np.array([[3.0, 3.0, 3.0], [4.0, 3.0, 3.0], [3.0, 4.0, 3.0], [3.0, 3.0, 4.0]]))
+    with pytest.raises(WarpblobError, match="would have 3 cells"):
+        s.replace_cells(np.zeros(0, np.int64), np.array([[a, b, p, q1], [a, b, p, q2], [a, b, p, q3]]), 0)
+    assert {kind: store.count for kind, store in s._stores.items() if kind != "node"} == {
+        kind: n for kind, n in counts.items() if kind != "node"}
+    assert s._table_node_bound == bound
+    e = np.asarray(s.edge_nodes, dtype=np.int64)
+    used = s._table_keys >= 0
+    assert dict(zip(s._table_keys[used].tolist(), s._table_values[used].tolist())) == dict(
+        zip(((e.max(axis=1) << 32) | e.min(axis=1)).tolist(), range(len(e))))
+    assert s.find_edge(a, p) == -1
+    s.check()
+    # a valid batch: the corner cell's four corners as they are, re-made (no new edge) and one on the new node
+    q = int(np.argmin(s.node_rest[: counts["node"]].sum(axis=1)))
+    corner = np.flatnonzero(np.any(s.cell_nodes == q, axis=1))[0]
+    s.replace_cells(np.array([corner]), s.cell_nodes[corner][None], 0)
+    s.check()
 
 
 def test_rest_grid_finds_every_cell_a_box_meets():

@@ -45,6 +45,7 @@ stale (a cell's nodes or a rest position, any cell or face).
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -54,7 +55,7 @@ import warp as wp
 
 from .._device import resolve_device
 from .._errors import WarpblobError
-from .._parallel import launch, thread_count
+from .._parallel import launch, submit, thread_count
 from .._stages import device_array, device_empty, host_array, mark_heads_kernel, rows_all, rows_any, shared_array
 from ._surface import bounds_text
 from ._tetmesh import TET_EDGES, TET_EDGES_WP, TET_FACES, TET_FACES_WP, TET_LOCAL_EDGE_WP, TetMesh
@@ -87,6 +88,9 @@ _DELETED_WP = wp.constant(wp.int64(DELETED))
 _GOLDEN_WP = wp.constant(wp.uint64(_GOLDEN))
 #: items per piece of a range-split launch of a kernel doing a few loads and stores per item
 _CHEAP = 16384
+#: missing edges from which a batch edit puts them in the lookup table on a pool thread beside the faces'
+#: matching (below, waking a thread costs more than it saves)
+_SIDE_EDGES = 1 << 14
 #: cells per range of the components' side-by-side union-find (fewer: one range, no second thread to wake)
 _COMPONENT_RANGE = 65536
 #: a flood after a batch edit may queue up to 1/_FLOOD_SHARE of the cells before every cell is counted
@@ -2191,6 +2195,13 @@ class TetStructure:
             keys = np.concatenate([old_keys, new_keys])
         else:
             keys = _face_keys(np.concatenate([faces["nodes"][old_faces], new[:, TET_FACES].reshape(-1, 3)]), N)
+        # a large batch's new edges go into the lookup table on a pool thread while the faces are matched
+        # here (both are one kernel thread's random probes; no range-split launch between the two, which
+        # would wait for the pool); undone below if the faces refuse the batch
+        table_before = self._table_node_bound
+        add_edges = None
+        if len(missing) >= _SIDE_EDGES:
+            add_edges = submit(functools.partial(self._add_edge_keys, edge_keys[missing]), 1)[0]
         groups, inverse, first_use, uses = _group_keys(keys, len(old_faces))
         face_of = np.full(groups, -1, dtype=np.int64)
         face_of[inverse[: len(old_faces)]] = old_faces
@@ -2198,6 +2209,10 @@ class TetStructure:
         taken[inverse[: len(old_faces)]] = (slots[:, 0] >= 0).astype(np.int32) + (slots[:, 1] >= 0)
         inv_new = inverse[len(old_faces) :]
         if np.any(taken + uses > 2):
+            if add_edges is not None:  # the table as it was: built anew from the edges, which did not change
+                add_edges.result()
+                self._build_table(cpu)
+                self._table_node_bound = table_before
             u = int(np.flatnonzero(taken + uses > 2)[0])
             f = new[np.flatnonzero(inv_new == u)[0] // 4][TET_FACES[np.flatnonzero(inv_new == u)[0] % 4]].tolist()
             raise WarpblobError(f"TetStructure.replace_cells: face {f} would have {taken[u] + uses[u]} cells")
@@ -2214,7 +2229,8 @@ class TetStructure:
         # edges: the new cells' six, found in the table or appended (numbered in the order they are first used,
         # oriented by that use), put in the lookup table as they are numbered
         if missing.size:
-            count, edge_of, first = self._add_edge_keys(edge_keys[missing])
+            count, edge_of, first = (add_edges.result() if add_edges is not None
+                                     else self._add_edge_keys(edge_keys[missing]))  # fmt: skip
             pairs = np.empty((count, 2), dtype=np.int32)
             launch(edge_pairs_kernel, count,
                    [new_wp, _shared(missing[first].astype(np.int32))],
