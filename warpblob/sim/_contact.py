@@ -328,12 +328,13 @@ class _Spread:
     __slots__ = ("nodes", "ranges", "rings", "room", "search", "tail", "total", "weights")
 
     def __init__(self, offsets: np.ndarray, nodes: np.ndarray, weights: np.ndarray, total: np.ndarray,
-                 rings: np.ndarray):  # fmt: skip
+                 rings: np.ndarray, search: _RingSearch | None = None):  # fmt: skip
         self.ranges = np.ascontiguousarray(np.stack([offsets[:-1], offsets[1:]], axis=1), dtype=np.int32)
         self.room = np.diff(offsets).astype(np.int32)
         self.nodes, self.weights, self.rings, self.total = nodes, weights, rings, total
         self.tail = len(nodes)
-        self.search = _RingSearch(int(self.room.max()) if len(self.room) else 0)
+        # (the search that made the rows, with its stamps, for the follows; else one sized by the rows)
+        self.search = search if search is not None else _RingSearch(int(self.room.max()) if len(self.room) else 0)
 
     def packed(self) -> tuple:
         """The spread as a packed CSR: ``(offsets (N + 1,) int32, nodes, weights, total, rings)``."""
@@ -365,10 +366,8 @@ def _ring_spread(tets, alive, node_count: int, k: int, threads=None) -> _Spread:
     total = np.bincount(rows, weights=w, minlength=N)
     offsets = np.zeros(N + 1, dtype=np.int32)
     np.cumsum(count, out=offsets[1:])
-    spread = _Spread(offsets, cols, (w / total[cols]).astype(np.float32), total, rings)
-    search.row_hint = spread.search.row_hint
-    spread.search = search  # (its stamps, for the follows)
-    return spread
+    # (the search's room a row is the largest row and a quarter now, as a spread's own would be)
+    return _Spread(offsets, cols, (w / total[cols]).astype(np.float32), total, rings, search)
 
 
 def ring_spread_after(spread: _Spread, tets: np.ndarray, alive: np.ndarray, node_count: int, k: int,
@@ -611,6 +610,10 @@ class Contact:
         self.deepest = np.zeros(0)
         self.active = False
         self.stats = {"seconds": {"locate": 0.0, "field": 0.0, "spread": 0.0}, "samples": 0, "penetrating": 0}
+        # what _build_buffers keeps between binds: the key of the tools its arrays were made for, and the
+        # state arrays' bases with room
+        self._tools_key = None
+        self._zero_bases: dict = {}
         self.bind(elements)
 
     # -- set-up ----------------------------------------------------------------
@@ -797,7 +800,7 @@ class Contact:
         self.group_count = max(1, len(krings))
         # the tools' own arrays, made again only when the tools or the device change
         key = (dev, tuple(id(r) for r in tools))
-        if getattr(self, "_tools_key", None) != key:
+        if self._tools_key != key:
             self._tools_key = key
             self._tool_first = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32)
             self._local = wp.array(np.concatenate([r.samples for r in tools]).astype(np.float32) if S else
@@ -813,7 +816,7 @@ class Contact:
             self._stiffness = wp.array(np.array([r.stiffness for r in tools] or [0.0], np.float32), dtype=float,
                                        device=dev)  # fmt: skip
         # the state arrays zeroed, in kept bases with room (a cut's rebind adds a few nodes)
-        bases = self.__dict__.setdefault("_zero_bases", {})
+        bases = self._zero_bases
 
         def zeros(name: str, n: int, dtype) -> wp.array:
             bases[name], view = room(bases.get(name), n, dtype, dev)

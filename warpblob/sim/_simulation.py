@@ -265,6 +265,10 @@ class Simulation:
             raise SimulationError(f"max_iterations must be a positive integer, got {max_iterations!r}")
         self.max_iterations = int(max_iterations)
         self.elements = Elements(rest, tets, alive, E, nu, rho, device=self.device, threads=self.threads)
+        # what _allocate keeps between rebuilds: the node buffers' bases with room, the masses and their box
+        self._kept: dict = {}
+        self._mass: np.ndarray | None = None
+        self._bounds: tuple | None = None
         self._allocate(positions, np.zeros_like(positions))
         self._rigid_ids = self._check_rigid(rigid)
         self._anchor_mask = self._node_mask("anchors", anchors)
@@ -329,7 +333,7 @@ class Simulation:
             bases = self._kept
             for name in ("x", "v"):
                 bases[f"{name}0"], bases[f"{name}1"] = bases[f"{name}1"], bases[f"{name}0"]
-        before = dict(self.__dict__.get("_kept", {}))  # (a base made anew has no rows to keep)
+        before = dict(self._kept)  # (a base made anew has no rows to keep)
         self._x = [self._node_buffer(f"x{i}", N, wp.vec3, old.get("x") if i == 0 else None, kept) for i in (0, 1)]
         self._v = [self._node_buffer(f"v{i}", N, wp.vec3, old.get("v") if i == 0 else None, kept) for i in (0, 1)]
         self._target = self._node_buffer("target", N, wp.vec3, old.get("target"), kept)
@@ -362,7 +366,7 @@ class Simulation:
         blocks = block_count(N, dev)
         self._check_bad = device_empty(blocks, wp.int32, dev, zero=True)
         self._check_sums = wp.zeros((len(k.CHECK_ROWS), blocks), dtype=wp.float64, device=dev)
-        old_mass = self.__dict__.get("_mass") if kept else None
+        old_mass = self._mass if kept else None
         self._mass = e.mass.numpy().astype(np.float64)
         # |m|_2: the right-hand side's norm per unit velocity, the scale of CG's absolute tolerance
         self._momentum = float(np.sqrt(np.sum(self._mass**2)))
@@ -378,7 +382,7 @@ class Simulation:
         masses before it, its ``kept`` old nodes) only the touched nodes' masses changed, so the box before it
         holds unless a node that lost its mass lay on it; it grows to the nodes that gained mass. Else a pass
         over every node."""
-        e, prev = self.elements, self.__dict__.get("_bounds")
+        e, prev = self.elements, self._bounds
         touched = e.touched_nodes
         if old_mass is not None and prev is not None and touched is not None and len(old_mass) == kept:
             t = touched.astype(np.int64)
@@ -398,7 +402,7 @@ class Simulation:
     def _node_buffer(self, name: str, n: int, dtype, old: wp.array | None = None, kept: int = 0) -> wp.array:
         """(n,) buffer ``name`` (not initialized) in a base kept between rebuilds (:func:`room`); with ``old``,
         its first ``kept`` rows hold ``old``'s (copied where the base had to be made anew)."""
-        bases = self.__dict__.setdefault("_kept", {})
+        bases = self._kept
         base = bases.get(name)
         bases[name], view = room(base, n, dtype, self.device)
         if kept and old is not None and bases[name] is not base:
