@@ -726,3 +726,22 @@ def test_the_codes_found_lacking_are_those_the_classification_rejects(device):
         lacking = np.zeros(n, dtype=bool)
         lacking[found // 4] = True
         np.testing.assert_array_equal(lacking, rejected)
+
+
+def test_cut_node_pairing_leaves_the_pooled_tables_empty():
+    """The cut-node copies pair their faces through the batch edits' pooled hash table: after a cut with cut
+    nodes every pooled table is EMPTY again, and the same cut of a fresh structure (the table now warm from
+    the first) gives the same structure, array for array."""
+    mesh = box_tetmesh((0, 0, 0), (1, 1, 1), (4, 4, 4))
+    sweep = SweepSurface.plane((0.5, 0.51, 0.49), (1.0, 0.02, -0.01), 3.0)  # (through the nodes at x = 0.5)
+    made = []
+    for _ in range(2):
+        s = TetStructure.from_tetmesh(mesh)
+        r = cut(s, sweep, collect=False)
+        assert r.nodes_cut > 0 and r.components == 2
+        assert structure_module._KEY_TABLES
+        assert all(np.all(table[:, 0] == -1) for table in structure_module._KEY_TABLES)
+        s.check()
+        made.append(s)
+    for name in ("node_rest", "edge_nodes", "face_nodes", "face_cells", "cell_nodes", "cell_faces", "cell_alive"):
+        np.testing.assert_array_equal(getattr(made[0], name), getattr(made[1], name), err_msg=name)

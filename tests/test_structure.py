@@ -640,6 +640,25 @@ def _split_edge(s, e):
     return a, b
 
 
+def test_a_built_structure_takes_a_cut_without_copying_its_columns():
+    """A structure just built reserves room for as many more entities of each kind as it has (address space:
+    the spare slots are not written until taken): a cut through it appends in place, every column of every
+    kind the same array as before, and the structure stays valid; an edit past that room grows them."""
+    s = TetStructure.from_tetmesh(grid_mesh(6))
+    columns = lambda: {kind: {name: id(a) for name, a in store.arrays.items()} for kind, store in s._stores.items()}
+    before, counts = columns(), {kind: store.count for kind, store in s._stores.items()}
+    r = wb.cut.cut(s, wb.cut.SweepSurface.plane((0.51, 0.49, 0.5), (0.3, 0.2, 1.0), 3.0), collect=False)
+    assert r.components == 2 and r.tets_added > r.tets_removed
+    assert all(s._stores[kind].count > counts[kind] for kind in ("node", "edge", "face", "cell"))
+    assert columns() == before
+    s.check()
+    cells = np.asarray(s.cell_nodes)[np.asarray(s.cell_alive)].copy()
+    for _ in range(2):  # the same cells again, twice: the cell store passes twice its built count
+        s.replace_cells(np.flatnonzero(s.cell_alive), cells, 0)
+    assert id(s._stores["cell"].arrays["nodes"]) != before["cell"]["nodes"]
+    s.check()
+
+
 def test_batch_edges_reuse_deleted_slots_and_grow_the_table():
     """A batch edit's new edges go into the lookup table as they are numbered: after a compaction left
     deleted slots, the new edges of the next batch (some of whose keys probe past a deleted slot) are all

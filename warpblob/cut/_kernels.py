@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..mesh._structure import _GOLDEN_WP, vec6i
+from ..mesh._structure import _EMPTY_WP, _edge_slot, vec6i
 from ..mesh._structure import _join
 from ..mesh._tetmesh import TET_EDGES_WP, TET_FACES_WP
 from ..sim._elements import DEGENERATE_VOLUME
@@ -613,44 +613,46 @@ def pair_faces_kernel(
     face_key: wp.array(dtype=wp.int64),
     face_elem: wp.array(dtype=wp.vec3i),
     face_flag: wp.array(dtype=wp.int32),
-    table_keys: wp.array(dtype=wp.int64),
-    table_values: wp.array(dtype=wp.int32),
+    bits: int,
+    table: wp.array(dtype=wp.int64),
+    used: wp.array(dtype=wp.int32),
     parent: wp.array(dtype=wp.int32),
     sweep_pairs: wp.array(dtype=wp.vec2i),
     sweep_count: wp.array(dtype=wp.int32),
 ):
     """One thread, faces in order: a face meets its earlier twin (the same key) in an open-addressing table
-    (``table_keys`` all -1, a power of two long). A pair off the sweep joins the two sides' copies of each
-    shared cut node (union by lower root, path halving); a pair on the sweep is listed ``(earlier, later)``
-    for the host (slivers)."""
-    mask = table_keys.shape[0] - 1
+    of ``2**bits`` slots, each a key and its face side by side (``table`` flat, every key EMPTY on entry and
+    again on exit; ``used`` scratch of a slot per face). A pair off the sweep joins the two sides' copies of
+    each shared cut node (union by lower root, path halving); a pair on the sweep is listed ``(earlier,
+    later)`` for the host (slivers)."""
+    mask = (1 << bits) - 1
+    taken = int(0)
     for i in range(face_key.shape[0]):
         flag = face_flag[i]
         if flag != 0:
             key = face_key[i]
-            s = int((wp.uint64(key) * _GOLDEN_WP) >> wp.uint64(40)) & mask
-            searching = int(1)
-            while searching == 1:
-                k = table_keys[s]
-                if k == wp.int64(-1):
-                    table_keys[s] = key
-                    table_values[s] = i
-                    searching = 0
-                elif k == key:
-                    j = table_values[s]
-                    searching = 0
-                    if face_flag[j] == 3:
-                        n = sweep_count[0]
-                        sweep_pairs[n] = wp.vec2i(j, i)
-                        sweep_count[0] = n + 1
-                    else:
-                        for m in range(3):
-                            a = face_elem[j][m]
-                            b = face_elem[i][m]
-                            if a >= 0 and b >= 0:
-                                _join(parent, a, b)
+            s = _edge_slot(key, bits)
+            while table[2 * s] != key and table[2 * s] != _EMPTY_WP:
+                s = (s + 1) & mask
+            if table[2 * s] != key:
+                table[2 * s] = key
+                table[2 * s + 1] = wp.int64(i)
+                used[taken] = s
+                taken += 1
+            else:
+                j = int(table[2 * s + 1])
+                if face_flag[j] == 3:
+                    n = sweep_count[0]
+                    sweep_pairs[n] = wp.vec2i(j, i)
+                    sweep_count[0] = n + 1
                 else:
-                    s = (s + 1) & mask
+                    for m in range(3):
+                        a = face_elem[j][m]
+                        b = face_elem[i][m]
+                        if a >= 0 and b >= 0:
+                            _join(parent, a, b)
+    for j in range(taken):
+        table[2 * used[j]] = _EMPTY_WP
 
 
 @wp.kernel(enable_backward=False)

@@ -1010,6 +1010,20 @@ def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _KEY_TABLES: list[np.ndarray] = []
 
 
+def _borrow_key_table(n: int) -> tuple[np.ndarray, int]:
+    """A hash table for ``n`` keys from :data:`_KEY_TABLES` (or a new one): ``(table, bits)``, ``table``
+    ((rows, 2) int64, every key EMPTY) with at least ``2**bits`` rows (1.5-3 a key), of which the user probes
+    only the first ``2**bits`` (:func:`_edge_slot`) and hands it back to the pool EMPTY again."""
+    bits = max(int(n + n // 2).bit_length(), 4)
+    try:
+        table = _KEY_TABLES.pop()
+    except IndexError:  # (none free: this thread's first edit, or another thread's edit holds it)
+        table = np.zeros((0, 2), dtype=np.int64)
+    if len(table) < 1 << bits:
+        table = np.full((1 << bits, 2), EMPTY, dtype=np.int64)
+    return table, bits
+
+
 def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
     """Groups of equal keys (``keys`` (n,) int64, non-negative; a batch edit's faces: the ``old`` faces of
     removed cells, then the new cells' four each; its missing edges), numbered in order of first occurrence
@@ -1018,13 +1032,7 @@ def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
     a key; of a larger one an earlier, larger batch left, only that many slots at its start, so that a small
     batch's probes stay in cache) comes from :data:`_KEY_TABLES` and goes back to it EMPTY."""
     n = len(keys)
-    bits = max(int(n + n // 2).bit_length(), 4)
-    try:
-        table = _KEY_TABLES.pop()
-    except IndexError:  # (none free: this thread's first edit, or another thread's edit holds it)
-        table = np.zeros((0, 2), dtype=np.int64)
-    if len(table) < 1 << bits:
-        table = np.full((1 << bits, 2), EMPTY, dtype=np.int64)
+    table, bits = _borrow_key_table(n)
     inverse, first, uses, group_slot = (np.empty(n, dtype=np.int32) for _ in range(4))
     count = np.zeros(1, dtype=np.int32)
     if n:
@@ -1032,7 +1040,7 @@ def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
                   inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old), bits,
                           host_array(table.reshape(-1), wp.int64),
                           *[host_array(a, wp.int32) for a in (inverse, first, uses, group_slot, count)]])  # fmt: skip
-    _KEY_TABLES.append(table)
+    _KEY_TABLES.append(table)  # (back to the pool: every key EMPTY again)
     groups = int(count[0])
     return groups, inverse, first[:groups], uses[:groups]
 
@@ -1196,10 +1204,12 @@ class _Store:
     def load(self, **arrays) -> None:
         """Replace every column (all of the same length, which becomes the count; a missing one is filled).
 
-        Capacity gets an eighth more, so the first cuts after a build do not copy every column.
+        Capacity is twice the count: the spare slots are reserved address space, not memory (they are not
+        written until taken), and the first cuts after a build then neither copy every column nor fault in
+        fresh pages for the copy.
         """
         n = self.count = len(arrays["alive"])
-        capacity = n + n // 8 + 16
+        capacity = 2 * n + 16
         for name, (shape, dt, fill) in self.columns.items():
             column = np.empty((capacity, *shape), dtype=dt)
             if name in arrays:
@@ -2414,7 +2424,7 @@ class TetStructure:
         cells, faces = self._stores["cell"], self._stores["face"]
         cpu = wp.get_device("cpu")
         if self._flood_mark is None or len(self._flood_mark) < cells.count:
-            self._flood_mark = np.full(len(cells.arrays["alive"]), -1, dtype=np.int32)
+            self._flood_mark = np.full(cells.count + cells.count // 4 + 16, -1, dtype=np.int32)
         mark = self._flood_mark
         budget = max(int(budget), len(seeds))
         queue = np.empty(budget, dtype=np.int32)
