@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from ..mesh._structure import _EMPTY_WP, _edge_slot, vec6i
+from ..mesh._structure import _EMPTY_WP, _pair_slot, vec6i
 from ..mesh._structure import _join
 from ..mesh._tetmesh import TET_EDGES_WP, TET_FACES_WP
 from ..sim._elements import DEGENERATE_VOLUME
@@ -625,15 +625,12 @@ def pair_faces_kernel(
     again on exit; ``used`` scratch of a slot per face). A pair off the sweep joins the two sides' copies of
     each shared cut node (union by lower root, path halving); a pair on the sweep is listed ``(earlier,
     later)`` for the host (slivers)."""
-    mask = (1 << bits) - 1
     taken = int(0)
     for i in range(face_key.shape[0]):
         flag = face_flag[i]
         if flag != 0:
             key = face_key[i]
-            s = _edge_slot(key, bits)
-            while table[2 * s] != key and table[2 * s] != _EMPTY_WP:
-                s = (s + 1) & mask
+            s = _pair_slot(table, bits, key)
             if table[2 * s] != key:
                 table[2 * s] = key
                 table[2 * s + 1] = wp.int64(i)

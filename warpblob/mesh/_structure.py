@@ -114,6 +114,17 @@ def _edge_slot(key: wp.int64, bits: int) -> int:
 
 
 @wp.func
+def _pair_slot(table: wp.array(dtype=wp.int64), bits: int, key: wp.int64) -> int:
+    """The slot of ``key`` in an open-addressing table of ``2**bits`` slots, each a key and its value side by
+    side (``table`` flat), or the EMPTY slot where it would go (linear probing from :func:`_edge_slot`)."""
+    mask = (1 << bits) - 1
+    s = _edge_slot(key, bits)
+    while table[2 * s] != key and table[2 * s] != _EMPTY_WP:
+        s = (s + 1) & mask
+    return s
+
+
+@wp.func
 def edge_table_find(
     keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32), bits: int, a: int, b: int
 ) -> int:
@@ -776,13 +787,10 @@ def group_keys_kernel(
     sort of the keys costs 2-3x this) and its missing edges. (Cut in two parts by hash, a thread each, it
     was no faster: the time goes to each key's random probe, not to the loop.)"""
     n = keys.shape[0]
-    mask = (1 << bits) - 1
     g = int(0)
     for i in range(n):
         key = keys[i]
-        s = _edge_slot(key, bits)
-        while table[2 * s] != key and table[2 * s] != _EMPTY_WP:
-            s = (s + 1) & mask
+        s = _pair_slot(table, bits, key)
         if table[2 * s] != key:
             table[2 * s] = key
             table[2 * s + 1] = wp.int64(g)
