@@ -13,7 +13,7 @@ import warp as wp
 from test_tetmesh import canonical, cube_mesh, grid_mesh, positive
 
 import warpblob as wb
-from warpblob.mesh._structure import TetStructure, TetStructureArrays, lookup_edge
+from warpblob.mesh._structure import DELETED, TetStructure, TetStructureArrays, lookup_edge
 from warpblob.mesh._tetmesh import TET_EDGES, TET_FACES, TetMesh
 
 # ---------------------------------------------------------------------------
@@ -703,6 +703,10 @@ def test_compaction_keeps_the_lookup_table_when_no_node_goes():
     assert maps["node"].min() >= 0 and (maps["edge"] < 0).sum() == 1  # the split edge alone went
     assert s._table_keys is keys and s._table_values is values  # followed in place, not rebuilt
     assert _table_contents(s) == _own_table(s)  # (before check(), whose queries may build it again)
+    # an edge exactly in the slots that hold a key (the removed edge's slot marked deleted, its edge gone):
+    # the next compaction reads the values alone
+    np.testing.assert_array_equal(s._table_values >= 0, s._table_keys >= 0)
+    assert np.count_nonzero(s._table_keys == DELETED) >= 1
     s.check()
     assert_consistent(s)
     assert s.find_edge(a, b) == -1

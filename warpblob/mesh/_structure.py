@@ -409,8 +409,9 @@ def remap_table_kernel(edge_map: wp.array(dtype=wp.int32), offset: int, keys: wp
     ``edge_map`` (old -> new index), a removed edge's slot marked deleted (its key stays where probing
     finds it: every other key keeps its slot)."""
     s = wp.tid() + offset
-    if keys[s] >= wp.int64(0):
-        e = edge_map[values[s]]
+    v = values[s]
+    if v >= 0:  # (a used slot: every writer keeps a value >= 0 exactly where a key is; keys are read only here)
+        e = edge_map[v]
         if e < 0:
             keys[s] = _DELETED_WP
             values[s] = -1
@@ -1108,9 +1109,12 @@ def _mark_used(used: np.ndarray, refs: np.ndarray, alive: np.ndarray) -> None:
            [_shared(used.view(np.uint8), wp.uint8)], "cpu", min_chunk=_CHEAP)  # fmt: skip
 
 
-def _remap_rows(index_map: np.ndarray, refs: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """:func:`_remap` of ``refs[rows]`` ((n, k) int32 refs, one kernel)."""
-    out = np.empty((len(rows), refs.shape[1]), dtype=np.int32)
+def _remap_rows(index_map: np.ndarray, refs: np.ndarray, rows: np.ndarray,
+                out: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """:func:`_remap` of ``refs[rows]`` ((n, k) int32 refs, one kernel), written to ``out`` ((len(rows), k)
+    int32, C-contiguous; new where None)."""
+    if out is None:
+        out = np.empty((len(rows), refs.shape[1]), dtype=np.int32)
     if len(rows):
         launch(remap_rows_kernel, len(rows), [_shared(refs), _shared(rows), _shared(index_map.astype(np.int32, copy=False))],
                [_shared(out)], "cpu", min_chunk=_CHEAP)  # fmt: skip
@@ -1216,15 +1220,22 @@ class _Store:
         written until taken), and the first cuts after a build then neither copy every column nor fault in
         fresh pages for the copy.
         """
-        n = self.count = len(arrays["alive"])
-        capacity = 2 * n + 16
-        for name, (shape, dt, fill) in self.columns.items():
-            column = np.empty((capacity, *shape), dtype=dt)
+        n = len(arrays["alive"])
+        for name, column in self.fresh(n).items():
             if name in arrays:
-                column[:n] = np.asarray(arrays[name], dtype=dt).reshape(n, *shape)  # a copy: we own it
+                column[:] = np.asarray(arrays[name], dtype=column.dtype).reshape(column.shape)  # a copy: we own it
             else:
-                column[:n] = fill
-            self.arrays[name] = column
+                column[:] = self.columns[name][2]
+
+    def fresh(self, n: int) -> dict[str, np.ndarray]:
+        """Replace every column by new, unwritten memory for ``n`` slots (the count) and as many spare ones
+        (:meth:`load`); the ``[0, n)`` rows of each, for the caller to fill (a compaction writes its remapped
+        rows straight into them). The old columns stay alive while the caller holds views of them."""
+        self.count = n
+        capacity = 2 * n + 16
+        for name, (shape, dt, _) in self.columns.items():
+            self.arrays[name] = np.empty((capacity, *shape), dtype=dt)
+        return {name: column[:n] for name, column in self.arrays.items()}
 
     def _grow(self, size: int) -> None:
         for name, (shape, dt, _) in self.columns.items():
@@ -2634,13 +2645,16 @@ class TetStructure:
             rest=nodes["rest"][n], position=nodes["position"][n], origin=nodes["origin"][n],
             alive=np.ones(n.sum(), dtype=bool),
         )  # fmt: skip
-        edges.load(nodes=_remap_rows(maps["node"], edges["nodes"], rows["edge"]), alive=np.ones(e.sum(), dtype=bool))
-        faces.load(
-            nodes=_remap_rows(maps["node"], faces["nodes"], rows["face"]),
-            edges=_remap_rows(maps["edge"], faces["edges"], rows["face"]),
-            cells=_remap_rows(maps["cell"], faces["cells"], rows["face"]),
-            alive=np.ones(f.sum(), dtype=bool),
-        )
+        # the remapped rows go straight into the new columns (no copy of them after)
+        old = {kind: {name: st[kind][name] for name in columns} for kind, columns in
+               (("edge", ("nodes",)), ("face", ("nodes", "edges", "cells")))}  # fmt: skip
+        new = edges.fresh(len(rows["edge"]))
+        _remap_rows(maps["node"], old["edge"]["nodes"], rows["edge"], out=new["nodes"])
+        new["alive"][:] = True
+        new = faces.fresh(len(rows["face"]))
+        for name, kind in (("nodes", "node"), ("edges", "edge"), ("cells", "cell")):
+            _remap_rows(maps[kind], old["face"][name], rows["face"], out=new[name])
+        new["alive"][:] = True
         # parent records of progressive cuts: those with a live child stay, renumbered, their nodes remapped
         pr = self._parents
         child_parent = cells["parent"][c]
@@ -2654,14 +2668,13 @@ class TetStructure:
             t=pr["t"][used], code=pr["code"][used], faces=_remap(maps["node"], pr["faces"][used]),
             centre=_remap(maps["node"], pr["centre"][used]), alive=np.ones(int(used.sum()), dtype=bool),
         )  # fmt: skip
-        cells.load(
-            nodes=_remap_rows(maps["node"], cells["nodes"], rows["cell"]),
-            faces=_remap_rows(maps["face"], cells["faces"], rows["cell"]),
-            edges=_remap_rows(maps["edge"], cells["edges"], rows["cell"]),
-            material=cells["material"][c],
-            parent=_remap(pmap, child_parent),
-            alive=np.ones(c.sum(), dtype=bool),
-        )
+        old = {name: cells[name] for name in ("nodes", "faces", "edges", "material")}
+        new = cells.fresh(len(rows["cell"]))
+        for name, kind in (("nodes", "node"), ("faces", "face"), ("edges", "edge")):
+            _remap_rows(maps[kind], old[name], rows["cell"], out=new[name])
+        new["material"][:] = old["material"][c]
+        new["parent"][:] = _remap(pmap, child_parent)
+        new["alive"][:] = True
         self._parented = None
         self._pending = {k: [] for k in KINDS}
         # the lookup table now; the CSR lists when a query first needs them
@@ -2692,7 +2705,7 @@ class TetStructure:
         its nodes; each cell's faces and edges are those of its nodes; face
         cell slots and cell faces agree both ways; the CSR links equal the
         inverse of the top-down links; the lookup table finds every live edge
-        and holds nothing else.
+        and holds nothing else, with an edge exactly in the slots that hold a key.
         """
         if self._links_dirty:
             self.rebuild_links(device="cpu")
@@ -2741,6 +2754,8 @@ class TetStructure:
         got = np.repeat(np.arange(len(self._edge_face_offsets) - 1), np.diff(self._edge_face_offsets)) * 2**31
         if not np.array_equal(np.sort(got + self._edge_face_list), expect):
             problems.append("edge -> faces links disagree with face edges")
+        if not np.array_equal(self._table_values >= 0, self._table_keys >= 0):  # (what its compaction reads)
+            problems.append("the lookup table's values and keys disagree on the used slots")
         if not np.array_equal(self.find_edges(en, device="cpu"), edge_ids):
             problems.append("the lookup table misses a live edge")
         if np.count_nonzero(self._table_keys >= 0) != len(edge_ids):
