@@ -617,30 +617,47 @@ def live_roots_kernel(parent: wp.array(dtype=wp.int32), cell_alive: wp.array(dty
     counts[r] = n
 
 
-@wp.kernel(enable_backward=False)
-def mark_used_kernel(refs: wp.array2d(dtype=wp.int32), alive: wp.array(dtype=wp.uint8), offset: int,
-                     used: wp.array(dtype=wp.uint8)):  # fmt: skip
-    """1 in ``used`` at every entity a live row of ``refs`` names (threads that mark one write the same)."""
-    i = wp.tid() + offset
-    if alive[i] != wp.uint8(0):
-        for j in range(refs.shape[1]):
-            r = refs[i, j]
-            if r >= 0:
-                used[r] = wp.uint8(1)
+def _row_kernels(width: int) -> tuple[wp.Kernel, wp.Kernel]:
+    """The compaction's two kernels over rows of ``width`` int32 references, read and written as one vector
+    each with the loop over the row unrolled (a loop over a 2-D array's row as long as its shape costs
+    Warp's CPU code 3-4x as much): ``mark_used`` and ``remap_rows``."""
+    row = _ROW_TYPES[width]
+
+    def mark_used(refs, alive, offset, used):
+        """1 in ``used`` at every entity a live row of ``refs`` names (threads that mark one write the same)."""
+        i = wp.tid() + offset
+        if alive[i] != wp.uint8(0):
+            r = refs[i]
+            for j in range(wp.static(width)):
+                if r[j] >= 0:
+                    used[r[j]] = wp.uint8(1)
+
+    def remap_rows(refs, rows, index_map, offset, out):
+        """Row ``i`` of ``out``: row ``rows[i]`` of ``refs`` through ``index_map`` (-1 stays -1)."""
+        i = wp.tid() + offset
+        r = refs[rows[i]]
+        o = row()
+        for j in range(wp.static(width)):
+            v = int(-1)
+            if r[j] >= 0:
+                v = index_map[r[j]]
+            o[j] = v
+        out[i] = o
+
+    # (the argument types given as objects: this module's annotations are strings, read without the closure)
+    ints, flags = wp.array(dtype=wp.int32), wp.array(dtype=wp.uint8)
+    mark_used.__annotations__ = {"refs": wp.array(dtype=row), "alive": flags, "offset": int, "used": flags}
+    remap_rows.__annotations__ = {"refs": wp.array(dtype=row), "rows": ints, "index_map": ints, "offset": int,
+                                  "out": wp.array(dtype=row)}  # fmt: skip
+    mark_used = wp.kernel(mark_used, enable_backward=False, name=f"mark_used_rows{width}_kernel", module=__name__)
+    remap_rows = wp.kernel(remap_rows, enable_backward=False, name=f"remap_rows{width}_kernel", module=__name__)
+    return mark_used, remap_rows
 
 
-@wp.kernel(enable_backward=False)
-def remap_rows_kernel(refs: wp.array2d(dtype=wp.int32), rows: wp.array(dtype=wp.int32),
-                      index_map: wp.array(dtype=wp.int32), offset: int, out: wp.array2d(dtype=wp.int32)):  # fmt: skip
-    """Row ``i`` of ``out``: row ``rows[i]`` of ``refs`` through ``index_map`` (-1 stays -1)."""
-    i = wp.tid() + offset
-    src = rows[i]
-    for j in range(refs.shape[1]):
-        r = refs[src, j]
-        v = int(-1)
-        if r >= 0:
-            v = index_map[r]
-        out[i, j] = v
+#: the row vectors of the structure's reference columns, by width
+_ROW_TYPES = {2: wp.vec2i, 3: wp.vec3i, 4: wp.vec4i, 6: vec6i}
+#: per width, :func:`_row_kernels` (made here, with the module's other kernels, not when first used)
+_ROW_KERNELS = {width: _row_kernels(width) for width in _ROW_TYPES}
 
 
 @wp.kernel(enable_backward=False)
@@ -1105,7 +1122,9 @@ def _shared(values: np.ndarray, dtype=wp.int32, device="cpu") -> wp.array:
 
 def _mark_used(used: np.ndarray, refs: np.ndarray, alive: np.ndarray) -> None:
     """``used[refs[alive]] = True`` (one kernel; ``used`` a bool array, written in place)."""
-    launch(mark_used_kernel, len(refs), [_shared(refs), _shared(alive.view(np.uint8), wp.uint8)],
+    width = refs.shape[1]
+    launch(_ROW_KERNELS[width][0], len(refs),
+           [_shared(refs, _ROW_TYPES[width]), _shared(alive.view(np.uint8), wp.uint8)],
            [_shared(used.view(np.uint8), wp.uint8)], "cpu", min_chunk=_CHEAP)  # fmt: skip
 
 
@@ -1116,8 +1135,10 @@ def _remap_rows(index_map: np.ndarray, refs: np.ndarray, rows: np.ndarray,
     if out is None:
         out = np.empty((len(rows), refs.shape[1]), dtype=np.int32)
     if len(rows):
-        launch(remap_rows_kernel, len(rows), [_shared(refs), _shared(rows), _shared(index_map.astype(np.int32, copy=False))],
-               [_shared(out)], "cpu", min_chunk=_CHEAP)  # fmt: skip
+        row = _ROW_TYPES[refs.shape[1]]
+        launch(_ROW_KERNELS[refs.shape[1]][1], len(rows),
+               [_shared(refs, row), _shared(rows), _shared(index_map.astype(np.int32, copy=False))],
+               [_shared(out, row)], "cpu", min_chunk=_CHEAP)  # fmt: skip
     return out
 
 
