@@ -16,8 +16,14 @@ from warpblob.mesh import _structure as structure_module
 from warpblob.mesh._structure import _group_keys, _unique_first, _unique_inverse, vec6i
 
 
-def _intersect(kernel, edges, positions, sweep, device):
+def _intersect(kernel, edges, positions, sweep, device, unrolled=False):
+    """The hits of ``kernel`` ("sides": the few-triangle kernel from the nodes' sides); ``unrolled``: the
+    few-triangle kernels with their loop unrolled for the sweep's triangle count (``FEW_KERNELS``)."""
     (lowers, uppers), corners = _boxes(sweep, device)
+    few, node_sides = k.intersect_edges_few_kernel, k.node_sides_kernel
+    if unrolled:
+        node_sides, few = k.FEW_KERNELS[sweep.triangle_count]
+        kernel = few if kernel is k.intersect_edges_few_kernel else kernel
     n = len(edges)
     inputs = [wp.array(edges, dtype=wp.vec2i, device=device), wp.ones(n, dtype=wp.uint8, device=device),
               wp.array(positions, dtype=wp.vec3, device=device)]  # fmt: skip
@@ -26,10 +32,10 @@ def _intersect(kernel, edges, positions, sweep, device):
         bvh = wp.Bvh(lowers, uppers)
         inputs += [bvh.id, corners, 0]
     elif kernel == "sides":  # the few-triangle kernel from the nodes' sides, taken first (a plane through the mesh)
-        kernel = k.intersect_edges_few_kernel
+        kernel = few
         normals, slack = _planes(sweep, device)
         sides = wp.empty((len(positions), sweep.triangle_count), dtype=wp.vec2, device=device)
-        wp.launch(k.node_sides_kernel, dim=len(positions), inputs=[inputs[2], corners, normals, 0, sides],
+        wp.launch(node_sides, dim=len(positions), inputs=[inputs[2], corners, normals, 0, sides],
                   device=device)  # fmt: skip
         inputs += [lowers, uppers, corners, normals, slack, sides, 0]
     else:
@@ -103,6 +109,27 @@ def test_same_side_skip_keeps_every_hit(device, scale):
     assert_same_hits(few, tree)
     # the same test from each node's sides, taken once (a sweep over most of the mesh)
     assert_same_hits(_intersect("sides", edges.astype(np.int32), positions, sweep, device), tree)
+    # and both by the kernels whose loop over the plane's two triangles is unrolled
+    for kernel in (k.intersect_edges_few_kernel, "sides"):
+        assert_same_hits(_intersect(kernel, edges.astype(np.int32), positions, sweep, device, unrolled=True), tree)
+
+
+@pytest.mark.parametrize("count", [1, 2, 3, 4])
+def test_unrolled_few_triangle_kernels_are_the_bvh_one(device, count):
+    """A curved strip of 1 to 4 triangles (the unrolled kernels' counts) against random edges: the unrolled
+    kernels, from the nodes' sides or not, give the BVH kernel's first hits, parameters and flags."""
+    rng = np.random.default_rng(20 + count)
+    s = np.linspace(0, 1, count + 1)
+    a = np.column_stack([s, 0.3 * np.sin(3 * s), np.zeros_like(s)])
+    sweep = SweepSurface(SweepSurface.from_blade(a, a + (0.1, 0.2, 1.0)).triangles[:count])  # (its first ones)
+    assert sweep.triangle_count == count
+    positions = rng.uniform(-0.2, 1.2, (400, 3)).astype(np.float32)
+    edges = rng.integers(0, 400, (3000, 2)).astype(np.int32)
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    tree = _intersect(k.intersect_edges_kernel, edges, positions, sweep, device)
+    assert tree[2].sum() > 20
+    for kernel in (k.intersect_edges_few_kernel, "sides"):
+        assert_same_hits(_intersect(kernel, edges, positions, sweep, device, unrolled=True), tree)
 
 
 def test_unique_inverse_is_numpys():

@@ -355,11 +355,13 @@ def cut(structure: TetStructure, sweep: SweepSurface, *, snap: float = 0.2, coll
     if len(boxes[0]) <= _FEW_TRIANGLES:  # a plane, a stroke step: the boxes themselves, no tree
         normals, slack = _planes(sweep, dev)
         sides = _no_sides(dev)
+        # (for a plane's or a frame's two triangles, up to FEW_UNROLLED, the kernels with their loop unrolled)
+        node_sides, intersect = k.FEW_KERNELS.get(len(boxes[0]), (k.node_sides_kernel, k.intersect_edges_few_kernel))
         if len(boxes[0]) <= _FEW_SIDES and T >= N:  # a sweep over most of the mesh: each node's sides once
             sides = wp.empty((N, len(boxes[0])), dtype=wp.vec2, device=dev)
-            launch(k.node_sides_kernel, N, [positions, corners, normals], [sides], dev, threads, min_chunk=8192)
-        launch(k.intersect_edges_few_kernel, T, [tested_nodes, edge_ok, positions, *boxes, corners, normals, slack,
-               sides], [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
+            launch(node_sides, N, [positions, corners, normals], [sides], dev, threads, min_chunk=8192)
+        launch(intersect, T, [tested_nodes, edge_ok, positions, *boxes, corners, normals, slack, sides],
+               [hit_t, hit_tri, flags], dev, threads, min_chunk=8192)  # fmt: skip
     else:
         bvh = wp.Bvh(*boxes)
         launch(k.intersect_edges_kernel, T, [tested_nodes, edge_ok, positions, bvh.id, corners],

@@ -15,6 +15,9 @@ __all__ = [
     "cells_at_nodes_kernel",
     "classify_units_kernel",
     "emit_subtets_kernel",
+    "few_crossing",
+    "FEW_KERNELS",
+    "FEW_UNROLLED",
     "flag_positive_kernel",
     "intersect_edges_few_kernel",
     "intersect_edges_kernel",
@@ -109,6 +112,44 @@ def node_side(p: wp.vec3, c0: wp.vec3, n: wp.vec3):
     return wp.vec2(wp.dot(n, sp), wp.abs(sp[0]) + wp.abs(sp[1]) + wp.abs(sp[2]))
 
 
+@wp.func
+def few_crossing(
+    i: int,
+    u: int,
+    w: int,
+    positions: wp.array(dtype=wp.vec3),
+    lowers: wp.array(dtype=wp.vec3),
+    uppers: wp.array(dtype=wp.vec3),
+    corners: wp.array(dtype=wp.vec3),
+    normals: wp.array(dtype=wp.vec3),
+    slack: wp.array(dtype=float),
+    sides: wp.array2d(dtype=wp.vec2),
+) -> float:
+    """The parameter where edge ``(u, w)`` crosses sweep triangle ``i``, -1 where it does not: passed over
+    where its ends lie on the same side of the triangle's plane by more than the slack, or its box misses
+    the triangle's (:func:`intersect_edges_few_kernel`), else :func:`segment_triangle`."""
+    a = wp.vec2()
+    b = wp.vec2()
+    if sides.shape[0] == 0:
+        a = node_side(positions[u], corners[3 * i], normals[i])
+        b = node_side(positions[w], corners[3 * i], normals[i])
+    else:
+        a = sides[u, i]
+        b = sides[w, i]
+    tol = slack[i] * (a[1] + b[1])
+    if (a[0] > tol and b[0] > tol) or (a[0] < -tol and b[0] < -tol):
+        return -1.0
+    p = positions[u]
+    q = positions[w]
+    lo = wp.min(p, q)
+    hi = wp.max(p, q)
+    lb = lowers[i]
+    ub = uppers[i]
+    if lo[0] > ub[0] or lo[1] > ub[1] or lo[2] > ub[2] or hi[0] < lb[0] or hi[1] < lb[1] or hi[2] < lb[2]:
+        return -1.0
+    return segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
+
+
 @wp.kernel(enable_backward=False)
 def node_sides_kernel(positions: wp.array(dtype=wp.vec3), corners: wp.array(dtype=wp.vec3),
                       normals: wp.array(dtype=wp.vec3), offset: int, sides: wp.array2d(dtype=wp.vec2)):  # fmt: skip
@@ -146,44 +187,59 @@ def intersect_edges_few_kernel(
     of the cost where a plane's box holds every edge). The ends' terms of that test are :func:`node_side`,
     read from the rows of ``sides`` ((nodes, triangles), :func:`node_sides_kernel`: a sweep over most of
     the mesh, each node's terms once instead of once per edge, an edge's positions loaded only where a
-    plane may cross it) or, where ``sides`` is empty, computed here."""
+    plane may cross it) or, where ``sides`` is empty, computed here (:func:`few_crossing`). For 1 to
+    :data:`FEW_UNROLLED` triangles, :data:`FEW_KERNELS` gives the same two kernels with their loop over the
+    triangles unrolled (a loop as long as an array's shape costs Warp's CPU code 2-3x as much)."""
     e = wp.tid() + offset
     flags[e] = 0  # hit_t and hit_tri are written at hits only (read there only)
     if edge_ok[e] == wp.uint8(0):
         return
-    u = edge_nodes[e][0]
-    w = edge_nodes[e][1]
-    here = sides.shape[0] == 0
-    p = wp.vec3()
-    q = wp.vec3()
-    if here:
-        p = positions[u]
-        q = positions[w]
+    ends = edge_nodes[e]
     for i in range(lowers.shape[0]):
-        a = wp.vec2()
-        b = wp.vec2()
-        if here:
-            a = node_side(p, corners[3 * i], normals[i])
-            b = node_side(q, corners[3 * i], normals[i])
-        else:
-            a = sides[u, i]
-            b = sides[w, i]
-        tol = slack[i] * (a[1] + b[1])
-        if not ((a[0] > tol and b[0] > tol) or (a[0] < -tol and b[0] < -tol)):
-            if not here:
-                p = positions[u]
-                q = positions[w]
-            lo = wp.min(p, q)
-            hi = wp.max(p, q)
-            lb = lowers[i]
-            ub = uppers[i]
-            if not (lo[0] > ub[0] or lo[1] > ub[1] or lo[2] > ub[2] or hi[0] < lb[0] or hi[1] < lb[1] or hi[2] < lb[2]):
-                t = segment_triangle(p, q, corners[3 * i], corners[3 * i + 1], corners[3 * i + 2])
-                if t >= 0.0:
-                    hit_t[e] = t
-                    hit_tri[e] = i
-                    flags[e] = 1
-                    return
+        t = few_crossing(i, ends[0], ends[1], positions, lowers, uppers, corners, normals, slack, sides)
+        if t >= 0.0:
+            hit_t[e] = t
+            hit_tri[e] = i
+            flags[e] = 1
+            return
+
+
+def _few_kernels(count: int) -> tuple[wp.Kernel, wp.Kernel]:
+    """:func:`node_sides_kernel` and :func:`intersect_edges_few_kernel` for a sweep of exactly ``count``
+    triangles, their loops over the triangles unrolled (the same values)."""
+
+    def node_sides(positions, corners, normals, offset, sides):
+        v = wp.tid() + offset
+        p = positions[v]
+        for i in range(wp.static(count)):
+            sides[v, i] = node_side(p, corners[3 * i], normals[i])
+
+    def intersect(edge_nodes, edge_ok, positions, lowers, uppers, corners, normals, slack, sides, offset, hit_t,
+                  hit_tri, flags):  # fmt: skip
+        e = wp.tid() + offset
+        flags[e] = 0
+        if edge_ok[e] == wp.uint8(0):
+            return
+        ends = edge_nodes[e]
+        for i in range(wp.static(count)):
+            t = few_crossing(i, ends[0], ends[1], positions, lowers, uppers, corners, normals, slack, sides)
+            if t >= 0.0:
+                hit_t[e] = t
+                hit_tri[e] = i
+                flags[e] = 1
+                return
+
+    # (the argument types as objects: this module's annotations are strings, read without the closure)
+    for f, kernel in ((node_sides, node_sides_kernel), (intersect, intersect_edges_few_kernel)):
+        f.__annotations__ = dict(kernel.adj.arg_types)
+    return (wp.kernel(node_sides, enable_backward=False, name=f"node_sides{count}_kernel", module=__name__),
+            wp.kernel(intersect, enable_backward=False, name=f"intersect_edges{count}_kernel", module=__name__))  # fmt: skip
+
+
+#: the most triangles :data:`FEW_KERNELS` has kernels for (a plane's two, a stroke frame's two, a few strips)
+FEW_UNROLLED = 4
+#: per triangle count 1 .. FEW_UNROLLED: (node sides, intersection) kernels with the loop unrolled
+FEW_KERNELS = {count: _few_kernels(count) for count in range(1, FEW_UNROLLED + 1)}
 
 
 @wp.kernel(enable_backward=False)
