@@ -772,3 +772,19 @@ def test_cut_node_pairing_leaves_the_pooled_tables_empty():
         made.append(s)
     for name in ("node_rest", "edge_nodes", "face_nodes", "face_cells", "cell_nodes", "cell_faces", "cell_alive"):
         np.testing.assert_array_equal(getattr(made[0], name), getattr(made[1], name), err_msg=name)
+
+
+def test_a_key_table_left_by_an_error_does_not_go_back_to_the_pool():
+    """The pooled hash table goes back to the pool only when its block ends normally (a kernel stopped midway
+    may leave keys in it): after an error inside the block the pool is as before, and the next table is
+    EMPTY."""
+    with structure_module._key_table(100) as (table, _bits):
+        pass
+    before = len(structure_module._KEY_TABLES)
+    with pytest.raises(RuntimeError, match="midway"):
+        with structure_module._key_table(100) as (table, _bits):
+            table.numpy()[0] = 7  # (a key left behind)
+            raise RuntimeError("stopped midway")
+    assert len(structure_module._KEY_TABLES) == before - 1
+    with structure_module._key_table(100) as (table, bits):
+        assert np.all(table.numpy()[0 : 2 << bits : 2] == -1)

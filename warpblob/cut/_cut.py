@@ -81,11 +81,9 @@ from .._errors import CutError
 from .._parallel import launch
 from .._stages import column_bounds, compact, device_array, device_empty, host_array, rows_all, rows_any
 from ..mesh._structure import (
-    _KEY_TABLES,
-    EMPTY,
     NODE_ORIGINS,
     TetStructure,
-    _borrow_key_table,
+    _key_table,
     _shared,
     _unique_first,
     union_find_kernel,
@@ -1127,17 +1125,10 @@ def _cut_node_copies(structure, cn, node_rows, unit_of, refs, ids, new: _NewNode
     parent = _shared(np.arange(n * 8, dtype=np.int32), wp.int32, cpu)
     sweep_pairs = device_empty(4 * R, wp.vec2i, cpu)
     sweep_count = device_empty(1, wp.int32, cpu, zero=True)
-    if cpu.is_cuda:
-        bits = max(int(6 * R).bit_length(), 4)
-        table, flat = None, wp.full(2 << bits, EMPTY, dtype=wp.int64, device=cpu)
-    else:  # the batch edits' pooled table (left EMPTY again): no fresh pages to fault in each cut
-        table, bits = _borrow_key_table(4 * R)
-        flat = _shared(table.reshape(-1), wp.int64, cpu)
-    wp.launch(k.pair_faces_kernel, dim=1, device=cpu,
-              inputs=[outs[1], outs[2], outs[3], bits, flat, device_empty(4 * R, wp.int32, cpu), parent,
-                      sweep_pairs, sweep_count])  # fmt: skip
-    if table is not None:
-        _KEY_TABLES.append(table)
+    with _key_table(4 * R, cpu) as (table, bits):  # (the batch edits' pooled table: no fresh pages each cut)
+        wp.launch(k.pair_faces_kernel, dim=1, device=cpu,
+                  inputs=[outs[1], outs[2], outs[3], bits, table, device_empty(4 * R, wp.int32, cpu), parent,
+                          sweep_pairs, sweep_count])  # fmt: skip
     ns = int(sweep_count.numpy()[0])
     a = b = np.zeros(0, np.int32)
     if ns:

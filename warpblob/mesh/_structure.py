@@ -45,6 +45,7 @@ stale (a cell's nodes or a rest position, any cell or face).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 from collections.abc import Callable
@@ -960,15 +961,6 @@ def _insert_edges(edge_nodes: wp.array, ids: np.ndarray, bits: int, keys: wp.arr
                           keys, values])  # fmt: skip
 
 
-def _face_edge_slots() -> np.ndarray:
-    """(4, 3) for face k of a tet, the TET_EDGES slot of its edge j (nodes j, j+1 of TET_FACES[k])."""
-    slot = {frozenset(map(int, e)): j for j, e in enumerate(TET_EDGES)}
-    return np.array([[slot[frozenset((int(f[j]), int(f[(j + 1) % 3])))] for j in range(3)] for f in TET_FACES])
-
-
-_FACE_EDGE_SLOTS = _face_edge_slots()
-
-
 def _face_keys(tri: np.ndarray, node_count: int) -> np.ndarray:
     """(F,) int64 order-free keys of (F, 3) node triples (unique for ``node_count < 2**21``, else a fallback)."""
     t = np.sort(np.asarray(tri, dtype=np.int64).reshape(-1, 3), axis=1)
@@ -1036,18 +1028,25 @@ def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _KEY_TABLES: list[np.ndarray] = []
 
 
-def _borrow_key_table(n: int) -> tuple[np.ndarray, int]:
-    """A hash table for ``n`` keys from :data:`_KEY_TABLES` (or a new one): ``(table, bits)``, ``table``
-    ((rows, 2) int64, every key EMPTY) with at least ``2**bits`` rows (1.5-3 a key), of which the user probes
-    only the first ``2**bits`` (:func:`_edge_slot`) and hands it back to the pool EMPTY again."""
+@contextlib.contextmanager
+def _key_table(n: int, device="cpu"):
+    """A hash table for ``n`` keys, every key EMPTY: ``(table, bits)``, ``table`` a flat int64 Warp array of
+    at least ``2**bits`` slots (1.5-3 a key), each a key and its value side by side, of which the user probes
+    only the first ``2**bits`` (:func:`_pair_slot`) and leaves every key EMPTY again. On the CPU it comes
+    from :data:`_KEY_TABLES` (a larger one an earlier batch left: only its start is used, so a small batch's
+    probes stay in cache) and goes back there when the block ends without an error; on CUDA it is new."""
     bits = max(int(n + n // 2).bit_length(), 4)
+    if not wp.get_device(device).is_cpu:
+        yield wp.full(2 << bits, EMPTY, dtype=wp.int64, device=device), bits
+        return
     try:
         table = _KEY_TABLES.pop()
     except IndexError:  # (none free: this thread's first edit, or another thread's edit holds it)
         table = np.zeros((0, 2), dtype=np.int64)
     if len(table) < 1 << bits:
         table = np.full((1 << bits, 2), EMPTY, dtype=np.int64)
-    return table, bits
+    yield host_array(table.reshape(-1), wp.int64), bits
+    _KEY_TABLES.append(table)  # (not after an error: its keys may not be EMPTY)
 
 
 def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
@@ -1058,15 +1057,14 @@ def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
     a key; of a larger one an earlier, larger batch left, only that many slots at its start, so that a small
     batch's probes stay in cache) comes from :data:`_KEY_TABLES` and goes back to it EMPTY."""
     n = len(keys)
-    table, bits = _borrow_key_table(n)
     inverse, first, uses, group_slot = (np.empty(n, dtype=np.int32) for _ in range(4))
     count = np.zeros(1, dtype=np.int32)
     if n:
-        wp.launch(group_keys_kernel, dim=1, device="cpu",
-                  inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old), bits,
-                          host_array(table.reshape(-1), wp.int64),
-                          *[host_array(a, wp.int32) for a in (inverse, first, uses, group_slot, count)]])  # fmt: skip
-    _KEY_TABLES.append(table)  # (back to the pool: every key EMPTY again)
+        with _key_table(n) as (table, bits):
+            wp.launch(group_keys_kernel, dim=1, device="cpu",
+                      inputs=[host_array(np.ascontiguousarray(keys, dtype=np.int64), wp.int64), int(old), bits,
+                              table, *[host_array(a, wp.int32) for a in (inverse, first, uses, group_slot,
+                                                                          count)]])  # fmt: skip
     groups = int(count[0])
     return groups, inverse, first[:groups], uses[:groups]
 
