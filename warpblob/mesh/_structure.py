@@ -1023,8 +1023,9 @@ def _unique_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return k[heads], inverse
 
 
-#: hash tables of :func:`group_keys_kernel` ((2^b, 2) int64: every key EMPTY, and its group), kept between
-#: batch edits of any structure: a big table's fresh pages cost more than the grouping itself
+#: hash tables of :func:`_key_table` ((2^b, 2) int64: every key EMPTY, and its value), kept between the batch
+#: edits' face groupings and the cuts' face pairings of any structure: a big table's fresh pages cost more
+#: than the probes themselves
 _KEY_TABLES: list[np.ndarray] = []
 
 
@@ -1053,9 +1054,8 @@ def _group_keys(keys: np.ndarray, old: int = 0) -> tuple:
     """Groups of equal keys (``keys`` (n,) int64, non-negative; a batch edit's faces: the ``old`` faces of
     removed cells, then the new cells' four each; its missing edges), numbered in order of first occurrence
     (:func:`group_keys_kernel`, one CPU thread): (count, (n,) int32 group of each key, per group the first key
-    from ``old`` on in it (counted from ``old``) and how many such keys it has). The hash table (1.5-3 slots
-    a key; of a larger one an earlier, larger batch left, only that many slots at its start, so that a small
-    batch's probes stay in cache) comes from :data:`_KEY_TABLES` and goes back to it EMPTY."""
+    from ``old`` on in it (counted from ``old``) and how many such keys it has), through a pooled
+    :func:`_key_table`."""
     n = len(keys)
     inverse, first, uses, group_slot = (np.empty(n, dtype=np.int32) for _ in range(4))
     count = np.zeros(1, dtype=np.int32)
